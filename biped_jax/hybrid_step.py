@@ -1,0 +1,317 @@
+"""The hybrid walking step of the sagittal five-link biped in MJX.
+
+Single support is a forward simulation of the pinned-stance chain with ``mjx.step`` (the stance foot is
+the world-fixed ``stance`` hinge, so it neither slips nor penetrates); touchdown is the perfectly
+inelastic impact map of the floating-base model, followed by relabelling legs 1 and 2. Both models are
+generated from one parameter set (``biped_jax.mjcf``). Every function is pure, differentiable with
+``jax.grad`` and batchable with ``jax.vmap``; no constraint solver is involved.
+
+Coordinates (see ``biped_jax.mjcf``):
+  pinned q = (stance, knee1, hip1, hip2, knee2), rad; stance is the stance shank's absolute pitch
+  (0 upright, positive leaning forward), the others are relative joint angles.
+  floating q = (x, z, pitch, hip1, knee1, hip2, knee2): hip position (m) and torso pitch (rad).
+  torques u = (H1, K1, H2, K2), N m; leg 1 stands, leg 2 swings.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax import robots
+from biped_jax.design import (
+    PLANAR_ACTUATED,
+    PLANAR_LINKS,
+    Design,
+    DesignLayout,
+    apply_design,
+    design_layout,
+)
+
+mjx = robots.import_mjx()
+
+PINNED_COORDINATES = ("stance", "knee1", "hip1", "hip2", "knee2")
+FLOATING_COORDINATES = ("x", "z", "pitch", "hip1", "knee1", "hip2", "knee2")
+ACTUATED = ("H1", "K1", "H2", "K2")
+N_PINNED, N_FLOATING, N_ACTUATED = 5, 7, 4
+
+# floating -> pinned coordinates: stance = pitch + hip1 + knee1; the joint angles copied.
+_FLOATING_TO_PINNED = np.array([
+    [0, 0, 1, 1, 1, 0, 0],
+    [0, 0, 0, 0, 1, 0, 0],
+    [0, 0, 0, 1, 0, 0, 0],
+    [0, 0, 0, 0, 0, 1, 0],
+    [0, 0, 0, 0, 0, 0, 1],
+], dtype=float)
+# Relabelling swaps (hip1, knee1) with (hip2, knee2) in floating coordinates.
+_RELABEL = np.array([0, 1, 2, 5, 6, 3, 4])
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class PlanarBiped:
+    """The two MJX models of one sagittal biped design (a pytree: batchable over designs).
+
+    Attributes:
+      pinned: ``mjx.Model`` of the single-support chain (5 DoF).
+      floating: ``mjx.Model`` of the floating-base planar biped (7 DoF).
+    """
+
+    pinned: object
+    floating: object
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class StanceTrajectory:
+    """A single-support rollout of T steps.
+
+    Attributes:
+      q: pinned coordinates, shape (T + 1, 5), rad.
+      qd: their rates, shape (T + 1, 5), rad/s.
+      qdd: accelerations at steps 0..T-1, shape (T, 5), rad/s^2.
+      u: joint torques applied at steps 0..T-1, shape (T, 4), N m.
+    """
+
+    q: jax.Array
+    qd: jax.Array
+    qdd: jax.Array
+    u: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Touchdown:
+    """The impact at touchdown and the relabelled start of the next step.
+
+    Attributes:
+      q: pinned coordinates after impact and relabelling, shape (5,), rad.
+      qd: their rates, shape (5,), rad/s.
+      impulse: ground impulse on the landing foot (x, z), shape (2,), N s.
+      old_stance_foot_velocity: (x, z) velocity of the foot that leaves the ground, shape (2,), m/s.
+      floating_qd_before, floating_qd_after: floating-base velocities across the impact, shape (7,).
+      floating_q: floating-base configuration at impact (before relabelling), shape (7,).
+    """
+
+    q: jax.Array
+    qd: jax.Array
+    impulse: jax.Array
+    old_stance_foot_velocity: jax.Array
+    floating_qd_before: jax.Array
+    floating_qd_after: jax.Array
+    floating_q: jax.Array
+
+
+# ----------------------------------------------------------------------------- models and designs
+
+def _check_mass_class(mass_class: str) -> None:
+    if mass_class not in robots.PLANAR_MASS_CLASSES:
+        raise ValueError(f"unknown mass class {mass_class!r}; known: {robots.PLANAR_MASS_CLASSES}")
+
+
+def load_planar_biped(mass_class: str = "12kg") -> PlanarBiped:
+    """Loads the pinned and floating MJX models of the 12 kg or 18 kg biped (paper Table 2)."""
+    _check_mass_class(mass_class)
+    return PlanarBiped(pinned=robots.load_mjx_model(f"biped5_pinned_{mass_class}"),
+                       floating=robots.load_mjx_model(f"biped5_floating_{mass_class}"))
+
+
+@functools.lru_cache(maxsize=None)
+def planar_layouts() -> tuple[DesignLayout, DesignLayout]:
+    """Design layouts (links torso, thigh1, shank1, thigh2, shank2; joints hip1, knee1, hip2, knee2) in
+    the pinned and the floating model. Identical for both mass classes."""
+    return tuple(design_layout(robots.load_mj_model(f"biped5_{variant}_12kg"), PLANAR_LINKS,
+                               PLANAR_ACTUATED) for variant in ("pinned", "floating"))
+
+
+def planar_design(mass_class: str = "12kg") -> Design:
+    """The design stored in the MJCF file of a mass class."""
+    from biped_jax.design import nominal_design
+    _check_mass_class(mass_class)
+    return nominal_design(robots.load_mj_model(f"biped5_pinned_{mass_class}"), planar_layouts()[0])
+
+
+def with_design(biped: PlanarBiped, design: Design) -> PlanarBiped:
+    """Both models of ``biped`` carrying ``design`` (traceable; vmap over designs)."""
+    pinned_layout, floating_layout = planar_layouts()
+    return PlanarBiped(pinned=apply_design(biped.pinned, pinned_layout, design),
+                       floating=apply_design(biped.floating, floating_layout, design))
+
+
+def with_timestep(model, timestep):
+    """``model`` (an ``mjx.Model``) integrating with ``timestep`` s; traceable."""
+    return model.replace(opt=model.opt.replace(timestep=jnp.asarray(timestep, model.opt.timestep.dtype)))
+
+
+# ----------------------------------------------------------------------------- kinematics
+
+def _check_shape(name: str, value, shape: tuple) -> jax.Array:
+    value = jnp.asarray(value)
+    if value.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {value.shape}")
+    return value
+
+
+def _positions(model, q):
+    data = mjx.make_data(model).replace(qpos=q)
+    return mjx.kinematics(model, data)
+
+
+def site_position(model, q: jax.Array, site: str) -> jax.Array:
+    """World position of a named site, shape (3,), m, at configuration ``q``, shape (nq,)."""
+    site_id = mjx.name2id(model, robots.mujoco.mjtObj.mjOBJ_SITE, site)
+    if site_id < 0:
+        raise ValueError(f"model has no site {site!r}")
+    return _positions(model, q).site_xpos[site_id]
+
+
+def site_velocity(model, q: jax.Array, qd: jax.Array, site: str) -> tuple[jax.Array, jax.Array]:
+    """(position (3,) m, velocity (3,) m/s) of a named site."""
+    return jax.jvp(lambda q_: site_position(model, q_, site), (q,), (qd,))
+
+
+def center_of_mass(model, q: jax.Array) -> jax.Array:
+    """Whole-body centre of mass, shape (3,), m."""
+    data = _positions(model, q)
+    return model.body_mass @ data.xipos / jnp.sum(model.body_mass)
+
+
+def mass_matrix(model, q: jax.Array) -> jax.Array:
+    """Joint-space mass matrix M(q), shape (nv, nv)."""
+    data = mjx.com_pos(model, _positions(model, q))
+    return mjx.full_m(model, mjx.crb(model, data))
+
+
+def mechanical_energy(model, q: jax.Array, qd: jax.Array) -> jax.Array:
+    """Kinetic plus gravitational potential energy, J (scalar)."""
+    data = _positions(model, q)
+    potential = -jnp.sum(model.body_mass * (data.xipos @ model.opt.gravity))
+    return 0.5 * qd @ mass_matrix(model, q) @ qd + potential
+
+
+def generalized_gravity(model, q: jax.Array) -> jax.Array:
+    """Generalised gravity forces G(q) (the bias force at rest), shape (nv,), N m or N."""
+    data = mjx.make_data(model).replace(qpos=q)
+    return mjx.fwd_velocity(model, mjx.fwd_position(model, data)).qfrc_bias
+
+
+# ----------------------------------------------------------------------------- single support
+
+def stance_rollout(pinned, q0: jax.Array, qd0: jax.Array, controls: jax.Array) -> StanceTrajectory:
+    """Simulates single support with ``mjx.step`` under zero-order-hold torques.
+
+    Args:
+      pinned: ``mjx.Model`` of the pinned chain; its ``opt.timestep`` is the step (s).
+      q0: initial pinned coordinates, shape (5,), rad.
+      qd0: initial rates, shape (5,), rad/s.
+      controls: torques (H1, K1, H2, K2) for each step, shape (T, 4), N m.
+
+    Returns:
+      The trajectory; step k applies ``controls[k]`` from state k.
+    """
+    q0 = _check_shape("q0", q0, (N_PINNED,))
+    qd0 = _check_shape("qd0", qd0, (N_PINNED,))
+    controls = jnp.asarray(controls)
+    if controls.ndim != 2 or controls.shape[1] != N_ACTUATED:
+        raise ValueError(f"controls must have shape (T, {N_ACTUATED}), got {controls.shape}")
+    template = mjx.make_data(pinned)
+
+    @jax.checkpoint  # store (q, qd) per step for the backward pass, not the whole mjx.Data
+    def step(state, u):
+        q, qd = state
+        data = mjx.step(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
+        return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc)
+
+    _, (q, qd, qdd) = jax.lax.scan(step, (q0, qd0), controls)
+    return StanceTrajectory(q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]),
+                            qdd=qdd, u=controls)
+
+
+def stance_acceleration(pinned, q: jax.Array, qd: jax.Array, u: jax.Array) -> jax.Array:
+    """Single-support accelerations qdd(q, qd, u), shape (5,), rad/s^2 (MJX forward dynamics)."""
+    data = mjx.make_data(pinned).replace(qpos=q, qvel=qd, ctrl=u)
+    return mjx.forward(pinned, data).qacc
+
+
+def swing_foot(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Swing-foot (x, z) position and velocity relative to the stance foot, each shape (2,), m, m/s."""
+    position, velocity = site_velocity(pinned, q, qd, "foot2")
+    return position[jnp.array([0, 2])], velocity[jnp.array([0, 2])]
+
+
+def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.Array:
+    """Stance-foot ground reaction force (F_x, F_z), shape (2,), N.
+
+    From Newton's law for the whole robot: the foot force is the only external force besides gravity,
+    so F = m_total (a_com - g), with a_com = J_com qdd + Jdot_com qd.
+    """
+    com = functools.partial(center_of_mass, pinned)
+    com_velocity = lambda q_: jax.jvp(com, (q_,), (qd,))[1]  # noqa: E731
+    _, convective = jax.jvp(com_velocity, (q,), (qd,))
+    _, from_qdd = jax.jvp(com, (q,), (qdd,))
+    force = jnp.sum(pinned.body_mass) * (from_qdd + convective - pinned.opt.gravity)
+    return force[jnp.array([0, 2])]
+
+
+# ----------------------------------------------------------------------------- touchdown
+
+def pinned_to_floating(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Floating-base state (shape (7,) each) of a single-support state, stance foot at the origin."""
+    def to_floating(q_):
+        hip = site_position(pinned, q_, "hip")
+        stance, knee1, hip1, hip2, knee2 = q_
+        return jnp.stack([hip[0], hip[2], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
+    return jax.jvp(to_floating, (q,), (qd,))
+
+
+def floating_to_pinned(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Pinned coordinates (shape (5,) each) of a floating state whose leg 1 is on the ground."""
+    transform = jnp.asarray(_FLOATING_TO_PINNED, qf.dtype)
+    return transform @ qf, transform @ qfd
+
+
+def relabel(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Swaps legs 1 and 2 of a floating-base state."""
+    return qf[_RELABEL], qfd[_RELABEL]
+
+
+def foot_jacobian(floating, qf: jax.Array, foot: str) -> jax.Array:
+    """d(foot x, z)/dq of the floating model, shape (2, 7)."""
+    return jax.jacfwd(lambda q_: site_position(floating, q_, foot)[jnp.array([0, 2])])(qf)
+
+
+def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Perfectly inelastic impact of foot 2 with the ground.
+
+    Solves M (qd+ - qd-) = J2^T Lambda with J2 qd+ = 0 (the landing foot at rest afterwards).
+
+    Returns:
+      (qd+ shape (7,), Lambda = ground impulse on foot 2 (x, z), shape (2,), N s).
+    """
+    mass = mass_matrix(floating, qf)
+    jac = foot_jacobian(floating, qf, "foot2")
+    kkt = jnp.block([[mass, -jac.T], [jac, jnp.zeros((2, 2), qf.dtype)]])
+    solution = jnp.linalg.solve(kkt, jnp.concatenate([mass @ qfd_before, jnp.zeros(2, qf.dtype)]))
+    return solution[:N_FLOATING], solution[N_FLOATING:]
+
+
+def touchdown(biped: PlanarBiped, q: jax.Array, qd: jax.Array) -> Touchdown:
+    """Impact of the swing foot and relabelling: the start state of the next step.
+
+    Args:
+      biped: the design's models.
+      q, qd: single-support state just before impact, shape (5,) each.
+    """
+    q = _check_shape("q", q, (N_PINNED,))
+    qd = _check_shape("qd", qd, (N_PINNED,))
+    qf, qfd_before = pinned_to_floating(biped.pinned, q, qd)
+    qfd_after, impulse = impact_map(biped.floating, qf, qfd_before)
+    old_foot_velocity = foot_jacobian(biped.floating, qf, "foot1") @ qfd_after
+    q_next, qd_next = floating_to_pinned(*relabel(qf, qfd_after))
+    return Touchdown(q=q_next, qd=qd_next, impulse=impulse,
+                     old_stance_foot_velocity=old_foot_velocity, floating_qd_before=qfd_before,
+                     floating_qd_after=qfd_after, floating_q=qf)
