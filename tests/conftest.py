@@ -1,0 +1,33 @@
+"""Test configuration: float64 (finite differences and physics checks need it) and JAX's persistent
+compilation cache, so a second run of the suite skips most compilation."""
+
+import os
+from pathlib import Path
+
+import jax
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir",
+                  os.environ.get("BIPED_JAX_CACHE", str(Path.home() / ".cache" / "biped_jax" / "jax")))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+@pytest.fixture(scope="session")
+def biped12():
+    from biped_jax import hybrid_step
+    return hybrid_step.load_planar_biped("12kg")
+
+
+@pytest.fixture(scope="session")
+def biped18():
+    from biped_jax import hybrid_step
+    return hybrid_step.load_planar_biped("18kg")
+
+
+@pytest.fixture(scope="session")
+def rollout():
+    """One jitted single-support rollout shared by every test (compiled once per horizon)."""
+    from biped_jax import hybrid_step
+    return jax.jit(hybrid_step.stance_rollout)

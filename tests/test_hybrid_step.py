@@ -1,0 +1,258 @@
+"""Physics checks of the hybrid step: energy, impact momentum, ground reaction, variant agreement,
+MJX against MuJoCo C, and autodiff against finite differences."""
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from biped_jax import hybrid_step as hs
+from biped_jax import robots
+
+mjx = robots.import_mjx()
+
+# A generic single-support state (knees bent, legs apart, everything moving) and torques.
+Q = jnp.array([0.25, 0.2, 0.15, -0.45, 0.5])
+QD = jnp.array([-1.2, 0.8, 1.5, -2.0, 1.0])
+U = jnp.array([3.0, -2.0, 1.5, 0.5])
+
+# Round-off tolerances in float64 for quantities of order one (linear solves of 7x7 systems).
+EXACT = 1e-10
+
+
+# ----------------------------------------------------------------------------- energy
+
+def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollout):
+    """MuJoCo's semi-implicit Euler conserves energy to O(dt): halving dt halves the error.
+
+    One compiled rollout of 200 steps serves both step sizes; the errors are compared over the same
+    0.1 s (100 steps at 1 ms against 200 steps at 0.5 ms).
+    """
+    energy = jax.jit(jax.vmap(hs.mechanical_energy, (None, 0, 0)))
+    errors = {}
+    for dt, steps in ((1e-3, 100), (5e-4, 200)):
+        model = hs.with_timestep(biped12.pinned, dt)
+        trajectory = rollout(model, Q, QD, jnp.zeros((200, 4)))
+        e = energy(model, trajectory.q[: steps + 1], trajectory.qd[: steps + 1])
+        errors[dt] = float(jnp.max(jnp.abs(e - e[0])))
+    # Stated tolerance: below 0.05 % of the ~42 J total energy at dt = 0.5 ms over 0.1 s.
+    assert errors[5e-4] < 0.02
+    order = np.log2(errors[1e-3] / errors[5e-4])
+    assert order == pytest.approx(1.0, abs=0.15), errors
+
+
+# ----------------------------------------------------------------------------- ground reaction
+
+def test_ground_reaction_of_a_robot_at_rest_is_its_weight(biped12):
+    q = jnp.array([0.0, 0.3, -0.3, 0.2, 0.4])
+    force = hs.ground_reaction(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
+    weight = float(jnp.sum(biped12.pinned.body_mass)) * 9.81
+    np.testing.assert_allclose(force, [0.0, weight], atol=EXACT * weight)
+
+
+def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(biped12):
+    """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
+    equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
+    pinned, floating = biped12.pinned, biped12.floating
+    qdd = hs.stance_acceleration(pinned, Q, QD, U)
+    force = hs.ground_reaction(pinned, Q, QD, qdd)
+    qf, qfd = hs.pinned_to_floating(pinned, Q, QD)
+
+    data = mjx.kinematics(floating, mjx.make_data(floating).replace(qpos=qf))
+    shank1 = mujoco.mj_name2id(robots.load_mj_model("biped5_floating_12kg"),
+                               mujoco.mjtObj.mjOBJ_BODY, "shank1")
+    foot = hs.site_position(floating, qf, "foot1")
+    force3 = jnp.array([force[0], 0.0, force[1]])
+    torque3 = jnp.cross(foot - data.xipos[shank1], force3)
+    xfrc = jnp.zeros((floating.nbody, 6)).at[shank1].set(jnp.concatenate([force3, torque3]))
+    data = mjx.make_data(floating).replace(qpos=qf, qvel=qfd, ctrl=U, xfrc_applied=xfrc)
+    qfdd = mjx.forward(floating, data).qacc
+
+    def hip(q):
+        return hs.site_position(pinned, q, "hip")[jnp.array([0, 2])]
+    hip_velocity = lambda q: jax.jvp(hip, (q,), (QD,))[1]  # noqa: E731
+    hip_acceleration = jax.jvp(hip, (Q,), (qdd,))[1] + jax.jvp(hip_velocity, (Q,), (QD,))[1]
+    stance, knee1, hip1, hip2, knee2 = qdd
+    expected = jnp.concatenate([hip_acceleration,
+                                jnp.stack([stance - knee1 - hip1, hip1, knee1, hip2, knee2])])
+    np.testing.assert_allclose(qfdd, expected, atol=1e-8 * float(jnp.abs(expected).max()))
+
+
+# ----------------------------------------------------------------------------- impact
+
+def _pitch(xmat):
+    return jnp.arctan2(xmat[0, 2], xmat[0, 0])
+
+
+def angular_momentum_about(model, q, qd, point):
+    """y-component of the floating model's angular momentum about a world point, kg m^2/s."""
+    def kinematics(q_):
+        data = mjx.kinematics(model, mjx.make_data(model).replace(qpos=q_))
+        return data.xipos, jax.vmap(_pitch)(data.xmat)
+    (position, _), (velocity, rate) = jax.jvp(kinematics, (q,), (qd,))
+    r = position - point
+    orbital = model.body_mass * (r[:, 2] * velocity[:, 0] - r[:, 0] * velocity[:, 2])
+    return jnp.sum(orbital + model.body_inertia[:, 1] * rate)
+
+
+@pytest.fixture(scope="module")
+def impact(biped12):
+    return jax.jit(hs.touchdown)(biped12, Q, QD)
+
+
+def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, impact):
+    floating = biped12.floating
+    foot2 = hs.site_position(floating, impact.floating_q, "foot2")
+    before = angular_momentum_about(floating, impact.floating_q, impact.floating_qd_before, foot2)
+    after = angular_momentum_about(floating, impact.floating_q, impact.floating_qd_after, foot2)
+    assert abs(float(before)) > 0.1  # a real test: there is momentum to conserve
+    assert float(after) == pytest.approx(float(before), abs=EXACT)
+
+
+def test_impact_leaves_the_landing_foot_at_rest(biped12, impact):
+    jac = hs.foot_jacobian(biped12.floating, impact.floating_q, "foot2")
+    assert float(jnp.linalg.norm(jac @ impact.floating_qd_before)) > 0.1
+    np.testing.assert_allclose(jac @ impact.floating_qd_after, 0.0, atol=EXACT)
+
+
+def test_impact_momentum_balance(biped12, impact):
+    """M (qd+ - qd-) = J^T Lambda, and the linear momentum jumps by the impulse."""
+    floating, qf = biped12.floating, impact.floating_q
+    mass = hs.mass_matrix(floating, qf)
+    jac = hs.foot_jacobian(floating, qf, "foot2")
+    jump = mass @ (impact.floating_qd_after - impact.floating_qd_before)
+    np.testing.assert_allclose(jump, jac.T @ impact.impulse, atol=EXACT)
+    com_velocity = lambda qd: jax.jvp(functools.partial(hs.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
+    total = jnp.sum(floating.body_mass)
+    momentum_jump = total * (com_velocity(impact.floating_qd_after) - com_velocity(impact.floating_qd_before))
+    np.testing.assert_allclose(momentum_jump[jnp.array([0, 2])], impact.impulse, atol=EXACT)
+
+
+def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, impact):
+    qf_after = impact.floating_qd_after
+    # New leg 1 is old leg 2: the new stance knee rate is old knee2's post-impact rate, and so on.
+    np.testing.assert_allclose(impact.qd[1:], qf_after[jnp.array([6, 5, 3, 4])], atol=EXACT)
+    np.testing.assert_allclose(impact.qd[0], qf_after[2] + qf_after[5] + qf_after[6], atol=EXACT)
+    jac1 = hs.foot_jacobian(biped12.floating, impact.floating_q, "foot1")
+    np.testing.assert_allclose(impact.old_stance_foot_velocity, jac1 @ qf_after, atol=EXACT)
+    # the new stance foot sits at the origin of the next step's pinned chain
+    _, swing_velocity = hs.swing_foot(biped12.pinned, impact.q, impact.qd)
+    np.testing.assert_allclose(swing_velocity, impact.old_stance_foot_velocity, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- variants agree
+
+def test_pinned_and_floating_variants_agree(biped12):
+    """With the foot pinned, the floating model reduces to the pinned one: G^T M_f G = M_p and
+    G^T grav_f = grav_p, with G = d q_floating / d q_pinned."""
+    pinned, floating = biped12.pinned, biped12.floating
+    to_floating = lambda q: hs.pinned_to_floating(pinned, q, jnp.zeros(5))[0]  # noqa: E731
+    g = jax.jacfwd(to_floating)(Q)
+    qf = to_floating(Q)
+    np.testing.assert_allclose(g.T @ hs.mass_matrix(floating, qf) @ g, hs.mass_matrix(pinned, Q),
+                               atol=EXACT)
+    np.testing.assert_allclose(g.T @ hs.generalized_gravity(floating, qf),
+                               hs.generalized_gravity(pinned, Q), atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- MJX against MuJoCo C
+
+# MJX and MuJoCo C differ by floating-point reordering only; 1e-8 relative in float64.
+MJX_VS_C = 1e-8
+
+
+def _c_rollout(mj_model, q0, qd0, controls):
+    data = mujoco.MjData(mj_model)
+    data.qpos[:], data.qvel[:] = q0, qd0
+    states = []
+    for u in controls:
+        data.ctrl[:] = u
+        mujoco.mj_step(mj_model, data)
+        states.append(np.concatenate([data.qpos, data.qvel]))
+    return np.array(states)
+
+
+def test_mjx_matches_mujoco_c_pinned_rollout(biped12, rollout):
+    mj_model = robots.load_mj_model("biped5_pinned_12kg")
+    rng = np.random.default_rng(0)
+    controls = rng.normal(scale=2.0, size=(200, 4))
+    trajectory = rollout(biped12.pinned, Q, QD, controls)
+    expected = _c_rollout(mj_model, np.asarray(Q), np.asarray(QD), controls)
+    np.testing.assert_allclose(np.concatenate([trajectory.q[1:], trajectory.qd[1:]], axis=1), expected,
+                               rtol=MJX_VS_C, atol=MJX_VS_C)
+
+
+@pytest.mark.parametrize("name", ["biped5_floating_12kg", "humanoid16_18kg"])
+def test_mjx_matches_mujoco_c_accelerations(name):
+    """Random states and torques (humanoid high in the air, so no contact)."""
+    mj_model = robots.load_mj_model(name)
+    model = robots.put_mjx_model(mj_model)
+    rng = np.random.default_rng(1)
+    forward = jax.jit(mjx.forward)
+    for _ in range(3):
+        data = mujoco.MjData(mj_model)
+        data.qpos[:] = mj_model.qpos0 + rng.normal(scale=0.3, size=mj_model.nq)
+        if mj_model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE:
+            data.qpos[2] = 2.0
+            data.qpos[3:7] /= np.linalg.norm(data.qpos[3:7])
+        data.qvel[:] = rng.normal(size=mj_model.nv)
+        data.ctrl[:] = rng.normal(scale=2.0, size=mj_model.nu)
+        mujoco.mj_forward(mj_model, data)
+        result = forward(model, mjx.put_data(mj_model, data))
+        np.testing.assert_allclose(result.qacc, data.qacc, rtol=MJX_VS_C,
+                                   atol=MJX_VS_C * np.abs(data.qacc).max())
+
+
+# ----------------------------------------------------------------------------- gradients
+
+def test_rollout_gradient_matches_central_finite_differences(biped12):
+    """d/d(q0, qd0, controls) of a rollout cost (final state, swing foot, ground force, torques),
+    10 steps in float64, along random directions."""
+    pinned = biped12.pinned
+
+    def cost(params):
+        q0, qd0, controls = params
+        trajectory = hs.stance_rollout(pinned, q0, qd0, controls)
+        foot, foot_velocity = hs.swing_foot(pinned, trajectory.q[-1], trajectory.qd[-1])
+        force = hs.ground_reaction(pinned, trajectory.q[-2], trajectory.qd[-2], trajectory.qdd[-1])
+        return (jnp.sum(trajectory.q[-1] ** 2) + 0.1 * jnp.sum(trajectory.qd[-1] ** 2)
+                + foot[1] + jnp.sum(foot_velocity) + 1e-3 * force[1] + jnp.sum(controls ** 2) * 1e-2)
+
+    params = (Q, QD, jnp.tile(U, (10, 1)))
+    value_fn = jax.jit(cost)
+    gradient = jax.jit(jax.grad(cost))(params)
+    rng = np.random.default_rng(2)
+    epsilon = 1e-6  # central differences: truncation ~eps^2, round-off ~1e-16/eps
+    for _ in range(3):
+        direction = jax.tree.map(lambda x: jnp.asarray(rng.normal(size=x.shape)), params)
+        shifted = lambda s: jax.tree.map(lambda x, d: x + s * d, params, direction)  # noqa: E731
+        finite = (value_fn(shifted(epsilon)) - value_fn(shifted(-epsilon))) / (2 * epsilon)
+        analytic = sum(jnp.vdot(g, d) for g, d in zip(jax.tree.leaves(gradient),
+                                                        jax.tree.leaves(direction)))
+        assert float(analytic) == pytest.approx(float(finite), rel=1e-6, abs=1e-8)
+
+
+def test_touchdown_gradient_matches_finite_differences(biped12):
+    def impact_cost(qd):
+        result = hs.touchdown(biped12, Q, qd)
+        return jnp.sum(result.qd ** 2) + jnp.sum(result.impulse) + result.old_stance_foot_velocity[1]
+    gradient = jax.grad(impact_cost)(QD)
+    value_fn = jax.jit(impact_cost)
+    epsilon = 1e-6
+    finite = jnp.array([(value_fn(QD + epsilon * e) - value_fn(QD - epsilon * e)) / (2 * epsilon)
+                        for e in jnp.eye(5)])
+    np.testing.assert_allclose(gradient, finite, rtol=1e-6, atol=1e-8)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+def test_wrong_shapes_are_named(biped12):
+    with pytest.raises(ValueError, match=r"controls must have shape \(T, 4\), got \(10, 3\)"):
+        hs.stance_rollout(biped12.pinned, Q, QD, jnp.zeros((10, 3)))
+    with pytest.raises(ValueError, match=r"q0 must have shape \(5,\), got \(7,\)"):
+        hs.stance_rollout(biped12.pinned, jnp.zeros(7), QD, jnp.zeros((10, 4)))
+    with pytest.raises(ValueError, match="mass class '15kg'"):
+        hs.load_planar_biped("15kg")

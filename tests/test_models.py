@@ -1,0 +1,93 @@
+"""Every robot loads in MuJoCo and MJX, the committed MJCF files match their generators, and bad
+input is rejected with an error naming the value."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from biped_jax import mjcf, robots
+from biped_jax.robot_specs import DonaldSpec, HumanoidSpec, PlanarBipedSpec
+
+mjx = robots.import_mjx()
+
+# Table 2 masses sum to 11.999 and 17.998 kg; the flat-foot humanoid adds two 0.2 kg feet (ours).
+TOTAL_MASS = {"12kg": 11.999, "18kg": 17.998}
+
+
+def test_committed_models_match_generators():
+    """models/*.xml are exactly what biped_jax.mjcf writes, so no variant can drift."""
+    directory = robots.models_dir()
+    sources = mjcf.model_sources()
+    assert sorted(p.name for p in directory.glob("*.xml")) == sorted(sources)
+    for name, text in sources.items():
+        assert (directory / name).read_text() == text, f"{name} is stale: run python -m biped_jax.mjcf"
+
+
+@pytest.mark.parametrize("name", sorted(robots.ROBOTS))
+def test_model_loads_and_steps_in_mujoco_and_mjx(name):
+    mj_model = robots.load_mj_model(name)
+    mj_data = mujoco.MjData(mj_model)
+    if mj_model.nkey:
+        mujoco.mj_resetDataKeyframe(mj_model, mj_data, 0)
+    mujoco.mj_forward(mj_model, mj_data)
+    model = robots.put_mjx_model(mj_model)
+    data = mjx.put_data(mj_model, mj_data)
+    data = jax.jit(mjx.forward)(model, data)
+    np.testing.assert_allclose(data.qacc, mj_data.qacc, atol=1e-6 * (1 + np.abs(mj_data.qacc).max()))
+    if name.startswith(("biped5", "humanoid")):
+        mass_class = name[-4:]
+        spec = HumanoidSpec()
+        extra = (0.0 if name.startswith("biped5") else
+                 2 * (spec.flat_foot_mass if "flatfoot" in name else spec.point_foot_mass))
+        assert np.sum(mj_model.body_mass) == pytest.approx(TOTAL_MASS[mass_class] + extra, abs=1e-6)
+
+
+def test_donald_masses_follow_table_7():
+    spec = DonaldSpec()
+    model = robots.load_mj_model("donald")
+    # 4 joint modules (motor+gear+encoder and base plate), 2 links, 2 foot plates, the pendulum bob.
+    expected = 4 * (0.376 + 0.137) + 2 * 0.103 + 2 * 0.570 + spec.pendulum_mass
+    assert np.sum(model.body_mass) == pytest.approx(expected, abs=1e-9)
+    assert model.nu == 5 and model.nv == 6 + 5
+
+
+def test_humanoid_has_16_actuated_joints_and_free_base():
+    model = robots.load_mj_model("humanoid16_12kg")
+    assert model.nu == 16 and model.nv == 6 + 16 and model.njnt == 17
+    assert model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+
+
+def test_unknown_model_name_is_named_in_the_error():
+    with pytest.raises(ValueError, match="'biped7'"):
+        robots.load_mj_model("biped7")
+
+
+def test_malformed_mjcf_names_the_file(tmp_path):
+    bad = tmp_path / "broken.xml"
+    bad.write_text("<mujoco><worldbody><body name='a'><joint type='hinge'/></worldbody></mujoco>")
+    with pytest.raises(ValueError, match="broken.xml"):
+        robots.load_mj_model_from_path(bad)
+    with pytest.raises(FileNotFoundError, match="missing.xml"):
+        robots.load_mj_model_from_path(tmp_path / "missing.xml")
+
+
+@pytest.mark.parametrize("field, value", [("thigh_mass", 0.0), ("shank_length", -0.15),
+                                          ("torso_mass", float("nan"))])
+def test_non_positive_spec_values_are_rejected(field, value):
+    with pytest.raises(ValueError, match=field):
+        PlanarBipedSpec(**{field: value})
+
+
+def test_humanoid_and_donald_specs_reject_bad_values():
+    with pytest.raises(ValueError, match="foot"):
+        HumanoidSpec(foot="wooden")
+    with pytest.raises(ValueError, match="link_length"):
+        DonaldSpec(link_length=0.0)
+
+
+def test_models_directory_is_inside_an_installed_package_or_the_source_tree():
+    directory = robots.models_dir()
+    assert (directory / "biped5_pinned_12kg.xml").is_file()
+    assert directory.name == "models"
