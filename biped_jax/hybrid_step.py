@@ -75,12 +75,14 @@ class StanceTrajectory:
       qd: their rates, shape (T + 1, 5), rad/s.
       qdd: accelerations at steps 0..T-1, shape (T, 5), rad/s^2.
       u: joint torques applied at steps 0..T-1, shape (T, 4), N m.
+      ground_force: stance-foot ground reaction (F_x, F_z) at steps 0..T-1, shape (T, 2), N.
     """
 
     q: jax.Array
     qd: jax.Array
     qdd: jax.Array
     u: jax.Array
+    ground_force: jax.Array
 
 
 @jax.tree_util.register_dataclass
@@ -219,16 +221,35 @@ def stance_rollout(pinned, q0: jax.Array, qd0: jax.Array, controls: jax.Array) -
     if controls.ndim != 2 or controls.shape[1] != N_ACTUATED:
         raise ValueError(f"controls must have shape (T, {N_ACTUATED}), got {controls.shape}")
     template = mjx.make_data(pinned)
+    integrate = _INTEGRATORS[int(pinned.opt.integrator)]
 
     @jax.checkpoint  # store (q, qd) per step for the backward pass, not the whole mjx.Data
     def step(state, u):
         q, qd = state
-        data = mjx.step(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
-        return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc)
+        data = mjx.forward(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
+        force = _stance_force(pinned, data)
+        data = integrate(pinned, data)
+        return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc, force)
 
-    _, (q, qd, qdd) = jax.lax.scan(step, (q0, qd0), controls)
+    _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
     return StanceTrajectory(q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]),
-                            qdd=qdd, u=controls)
+                            qdd=qdd, u=controls, ground_force=force)
+
+
+# mjx.step's integrator dispatch, split so the ground force comes from the same forward pass.
+_INTEGRATORS = {int(mjx.IntegratorType.EULER): mjx.euler,
+                int(mjx.IntegratorType.RK4): mjx.rungekutta4,
+                int(mjx.IntegratorType.IMPLICITFAST): mjx.implicit}
+
+
+def _stance_force(pinned, data) -> jax.Array:
+    """(F_x, F_z) the world exerts on the stance shank through the pin, N, from MJX's
+    Newton-Euler pass (``rne_postconstraint``: body accelerations with gravity, interaction forces)."""
+    data = mjx.rne_postconstraint(pinned, data)
+    return data._impl.cfrc_int[_STANCE_BODY, jnp.array([3, 5])]
+
+
+_STANCE_BODY = 1  # shank1, the first body of the pinned chain (checked in the tests)
 
 
 def stance_acceleration(pinned, q: jax.Array, qd: jax.Array, u: jax.Array) -> jax.Array:
@@ -244,17 +265,14 @@ def swing_foot(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Arra
 
 
 def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.Array:
-    """Stance-foot ground reaction force (F_x, F_z), shape (2,), N.
+    """Stance-foot ground reaction force (F_x, F_z), shape (2,), N, at a state and acceleration.
 
-    From Newton's law for the whole robot: the foot force is the only external force besides gravity,
-    so F = m_total (a_com - g), with a_com = J_com qdd + Jdot_com qd.
+    The pin is the only contact, so this is the force the world exerts on the stance shank; MJX's
+    Newton-Euler pass gives it from (q, qd, qdd).
     """
-    com = functools.partial(center_of_mass, pinned)
-    com_velocity = lambda q_: jax.jvp(com, (q_,), (qd,))[1]  # noqa: E731
-    _, convective = jax.jvp(com_velocity, (q,), (qd,))
-    _, from_qdd = jax.jvp(com, (q,), (qdd,))
-    force = jnp.sum(pinned.body_mass) * (from_qdd + convective - pinned.opt.gravity)
-    return force[jnp.array([0, 2])]
+    data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
+    data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
+    return _stance_force(pinned, data.replace(qacc=qdd))
 
 
 # ----------------------------------------------------------------------------- touchdown

@@ -48,9 +48,32 @@ def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollo
 
 def test_ground_reaction_of_a_robot_at_rest_is_its_weight(biped12):
     q = jnp.array([0.0, 0.3, -0.3, 0.2, 0.4])
-    force = hs.ground_reaction(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
+    force = jax.jit(hs.ground_reaction)(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
     weight = float(jnp.sum(biped12.pinned.body_mass)) * 9.81
     np.testing.assert_allclose(force, [0.0, weight], atol=EXACT * weight)
+
+
+def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout):
+    """F = m_total (a_com - g), with a_com differentiated from the centre of mass position; and the
+    rollout's per-step force is the same function of its states."""
+    pinned = biped12.pinned
+    assert hs._STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
+                                                mujoco.mjtObj.mjOBJ_BODY, "shank1")
+    qdd = jax.jit(hs.stance_acceleration)(pinned, Q, QD, U)
+    com = functools.partial(hs.center_of_mass, pinned)
+
+    @jax.jit
+    def newton(q, qd, qdd):
+        com_velocity = lambda q_: jax.jvp(com, (q_,), (qd,))[1]  # noqa: E731
+        acceleration = jax.jvp(com, (q,), (qdd,))[1] + jax.jvp(com_velocity, (q,), (qd,))[1]
+        return (jnp.sum(pinned.body_mass) * (acceleration - pinned.opt.gravity))[jnp.array([0, 2])]
+
+    force = jax.jit(hs.ground_reaction)(pinned, Q, QD, qdd)
+    np.testing.assert_allclose(force, newton(Q, QD, qdd), rtol=1e-10)
+    trajectory = rollout(pinned, Q, QD, jnp.tile(U, (200, 1)))
+    k = 57
+    np.testing.assert_allclose(trajectory.ground_force[k],
+                               newton(trajectory.q[k], trajectory.qd[k], trajectory.qdd[k]), rtol=1e-10)
 
 
 def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(biped12):
@@ -113,7 +136,7 @@ def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, impac
 
 
 def test_impact_leaves_the_landing_foot_at_rest(biped12, impact):
-    jac = hs.foot_jacobian(biped12.floating, impact.floating_q, "foot2")
+    jac = jax.jit(hs.foot_jacobian, static_argnums=2)(biped12.floating, impact.floating_q, "foot2")
     assert float(jnp.linalg.norm(jac @ impact.floating_qd_before)) > 0.1
     np.testing.assert_allclose(jac @ impact.floating_qd_after, 0.0, atol=EXACT)
 
@@ -208,31 +231,45 @@ def test_mjx_matches_mujoco_c_accelerations(name):
 
 # ----------------------------------------------------------------------------- gradients
 
-def test_rollout_gradient_matches_central_finite_differences(biped12):
-    """d/d(q0, qd0, controls) of a rollout cost (final state, swing foot, ground force, torques),
-    10 steps in float64, along random directions."""
-    pinned = biped12.pinned
-
-    def cost(params):
-        q0, qd0, controls = params
-        trajectory = hs.stance_rollout(pinned, q0, qd0, controls)
-        foot, foot_velocity = hs.swing_foot(pinned, trajectory.q[-1], trajectory.qd[-1])
-        force = hs.ground_reaction(pinned, trajectory.q[-2], trajectory.qd[-2], trajectory.qdd[-1])
-        return (jnp.sum(trajectory.q[-1] ** 2) + 0.1 * jnp.sum(trajectory.qd[-1] ** 2)
-                + foot[1] + jnp.sum(foot_velocity) + 1e-3 * force[1] + jnp.sum(controls ** 2) * 1e-2)
-
-    params = (Q, QD, jnp.tile(U, (10, 1)))
+def _check_gradient(cost, params, seed, directions=3):
+    """Directional derivatives of ``cost`` by autodiff against central finite differences."""
     value_fn = jax.jit(cost)
     gradient = jax.jit(jax.grad(cost))(params)
-    rng = np.random.default_rng(2)
+    rng = np.random.default_rng(seed)
     epsilon = 1e-6  # central differences: truncation ~eps^2, round-off ~1e-16/eps
-    for _ in range(3):
+    for _ in range(directions):
         direction = jax.tree.map(lambda x: jnp.asarray(rng.normal(size=x.shape)), params)
         shifted = lambda s: jax.tree.map(lambda x, d: x + s * d, params, direction)  # noqa: E731
         finite = (value_fn(shifted(epsilon)) - value_fn(shifted(-epsilon))) / (2 * epsilon)
         analytic = sum(jnp.vdot(g, d) for g, d in zip(jax.tree.leaves(gradient),
                                                         jax.tree.leaves(direction)))
         assert float(analytic) == pytest.approx(float(finite), rel=1e-6, abs=1e-8)
+
+
+def test_rollout_gradient_matches_central_finite_differences(biped12):
+    """d/d(q0, qd0, controls) of a rollout cost, 10 steps in float64, along random directions."""
+    pinned = biped12.pinned
+
+    def cost(params):
+        q0, qd0, controls = params
+        trajectory = hs.stance_rollout(pinned, q0, qd0, controls)
+        return (jnp.sum(trajectory.q[-1] ** 2) + 0.1 * jnp.sum(trajectory.qd[-1] ** 2)
+                + jnp.sum(trajectory.qdd[-1]) * 1e-2 + jnp.sum(controls ** 2) * 1e-2)
+
+    _check_gradient(cost, (Q, QD, jnp.tile(U, (10, 1))), seed=2)
+
+
+def test_swing_foot_and_ground_reaction_gradients_match_finite_differences(biped12):
+    pinned = biped12.pinned
+
+    def cost(params):
+        q, qd, u = params
+        qdd = hs.stance_acceleration(pinned, q, qd, u)
+        foot, foot_velocity = hs.swing_foot(pinned, q, qd)
+        force = hs.ground_reaction(pinned, q, qd, qdd)
+        return foot[1] + jnp.sum(foot_velocity) + 1e-2 * force[1] + 1e-2 * force[0] ** 2
+
+    _check_gradient(cost, (Q, QD, U), seed=3)
 
 
 def test_touchdown_gradient_matches_finite_differences(biped12):
