@@ -1,0 +1,52 @@
+"""The main job writes its files, and the numbers in them hang together."""
+
+import json
+
+import numpy as np
+import pytest
+
+from biped_jax import cli
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    out = tmp_path_factory.mktemp("out")
+    cli.main(["reproduce", "--out", str(out)])
+    return out, json.loads((out / "results.json").read_text())
+
+
+def test_reproduce_writes_results_table_and_figure(results):
+    out, data = results
+    assert (out / "heuristic_step.png").stat().st_size > 10_000
+    assert "| touched down |" in (out / "heuristic_step.md").read_text()
+    assert [s["mass_class"] for s in data["steps"]] == ["12kg", "18kg"]
+
+
+def test_reported_step_is_physical(results):
+    _, data = results
+    for step in data["steps"]:
+        assert step["finite"] and step["touched_down"]
+        weight = step["mass_kg"] * 9.81
+        assert step["min_vertical_force_N"] > 0  # the stance foot stays loaded
+        # a gentle heuristic step: the foot force stays of the order of the weight
+        assert 0.5 * weight < step["max_vertical_force_N"] < 2 * weight
+        assert 0.1 < step["step_length_m"] < 0.3
+        assert step["energy_lost_at_impact_J"] > 0  # an inelastic impact dissipates
+        assert step["old_stance_foot_velocity_after_impact_mps"][1] > 0  # it lifts off
+    assert data["steps"][1]["mass_kg"] == pytest.approx(17.998, abs=1e-6)
+
+
+def test_unknown_command_and_model_are_rejected(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["fly"])
+    with pytest.raises(SystemExit):
+        cli.main(["view", "biped7"])
+    assert "biped7" in capsys.readouterr().err
+
+
+def test_models_command_lists_every_model(capsys):
+    from biped_jax.robots import ROBOTS
+    assert cli.main(["models"]) == 0
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in ROBOTS)
+    assert np.sum([line.endswith(".xml]") for line in listed.splitlines()]) == len(ROBOTS)
