@@ -131,14 +131,17 @@ def planar_pinned_xml(spec: PlanarBipedSpec, name: str, timestep: float = 0.005)
       </body>
     </body>
   </worldbody>
-  <actuator>
-    <motor name="H1" joint="hip1"/>
-    <motor name="K1" joint="knee1"/>
-    <motor name="H2" joint="hip2"/>
-    <motor name="K2" joint="knee2"/>
-  </actuator>
-</mujoco>
+{_PLANAR_ACTUATORS}</mujoco>
 """
+
+
+def _actuators(names_and_joints) -> str:
+    """Direct torque motors (gear 1, no control limit: torque bounds are the optimiser's constraints)."""
+    motors = "".join(f'    <motor name="{name}" joint="{joint}"/>\n' for name, joint in names_and_joints)
+    return f"  <actuator>\n{motors}  </actuator>\n"
+
+
+_PLANAR_ACTUATORS = _actuators([("H1", "hip1"), ("K1", "knee1"), ("H2", "hip2"), ("K2", "knee2")])
 
 
 def _planar_leg(s: PlanarBipedSpec, leg: int, rgba: str) -> str:
@@ -178,13 +181,7 @@ def planar_floating_xml(spec: PlanarBipedSpec, name: str, timestep: float = 0.00
       <site name="hip"/>
 {_planar_leg(s, 1, "0.3 0.5 0.8 1")}{_planar_leg(s, 2, "0.8 0.5 0.3 1")}    </body>
   </worldbody>
-  <actuator>
-    <motor name="H1" joint="hip1"/>
-    <motor name="K1" joint="knee1"/>
-    <motor name="H2" joint="hip2"/>
-    <motor name="K2" joint="knee2"/>
-  </actuator>
-  <keyframe>
+{_PLANAR_ACTUATORS}  <keyframe>
     <key name="stand" qpos="0 {stand:.10g} 0 0 0 0 0"/>
   </keyframe>
 </mujoco>
@@ -261,7 +258,6 @@ def humanoid_xml(spec: HumanoidSpec, name: str, timestep: float = 0.002) -> str:
     shoulder_y = s.torso_width / 2 + spec.arm_radius
     foot_drop = 0.0 if spec.foot == "point" else spec.flat_foot_size[2]
     stand = s.thigh_length + s.shank_length + foot_drop
-    motors = "\n".join(f'    <motor name="{j}" joint="{j}"/>' for j in HUMANOID_ACTUATED_JOINTS)
     return _HEADER.format(name=name, timestep=timestep, gz=-s.gravity, option_extra="",
                           flags="", floor_contact=' contype="1" conaffinity="1"') + f"""\
     <body name="torso" pos="0 0 {stand:.10g}">
@@ -273,10 +269,7 @@ def humanoid_xml(spec: HumanoidSpec, name: str, timestep: float = 0.002) -> str:
 {_humanoid_leg(spec, "l", spec.hip_half_width)}{_humanoid_leg(spec, "r", -spec.hip_half_width)}\
 {_humanoid_arm(spec, "l", shoulder_y)}{_humanoid_arm(spec, "r", -shoulder_y)}    </body>
   </worldbody>
-  <actuator>
-{motors}
-  </actuator>
-</mujoco>
+{_actuators((j, j) for j in HUMANOID_ACTUATED_JOINTS)}</mujoco>
 """
 
 
@@ -322,7 +315,6 @@ rgba="0.2 0.2 0.2 1"/>
       </body>
 """
 
-    motors = "\n".join(f'    <motor name="{j}" joint="{j}"/>' for j in DONALD_ACTUATED_JOINTS)
     return _HEADER.format(name=name, timestep=timestep, gz=-9.81, option_extra="",
                           flags="", floor_contact=' contype="1" conaffinity="1"') + f"""\
     <body name="pelvis" pos="0 0 {hip_height:.10g}">
@@ -337,10 +329,7 @@ rgba="0.2 0.2 0.2 1"/>
       </body>
 {leg(1, d.hip_half_width)}{leg(2, -d.hip_half_width)}    </body>
   </worldbody>
-  <actuator>
-{motors}
-  </actuator>
-</mujoco>
+{_actuators((j, j) for j in DONALD_ACTUATED_JOINTS)}</mujoco>
 """
 
 
