@@ -1,0 +1,189 @@
+"""Drive trains: the Maxon RE 25 + GP 32 A catalogue and a differentiable DC-motor and gear model.
+
+The catalogue (``data/maxon_catalogue.json``) is in catalogue units; :func:`load_catalogue` converts
+to SI once, so everything below works in N m, rad/s, A, V, W, kg m^2. The model is the standard DC
+motor with the paper's eqs. 2.3-2.5:
+
+  motor torque  T_m = T / (N eta) when the motor drives the load, T eta / N when back-driven;
+  motor speed   omega_m = N omega;
+  current       i = T_m / k_t;   Joule loss P_J = R i^2;   voltage V = R i + k_t omega_m;
+  speed-torque line at supply V_s: omega_m <= (V_s - R T_m / k_t) / k_t (eq. 2.5 for an ideal motor).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from importlib import resources
+
+import jax
+import jax.numpy as jnp
+
+RPM = 2 * math.pi / 60  # rad/s per rpm
+MNM = 1e-3  # N m per mN m
+GCM2 = 1e-7  # kg m^2 per g cm^2
+
+
+@dataclasses.dataclass(frozen=True)
+class Motor:
+    """A DC motor winding, SI units.
+
+    Attributes:
+      part: catalogue name; nominal_voltage: V; torque_constant: k_t, N m/A (= back-EMF constant,
+      V s/rad); resistance: terminal resistance R, ohm; rotor_inertia: kg m^2; nominal_torque: max.
+      continuous torque (thermal limit), N m; max_speed: rad/s; mass: kg; provenance, source: where
+      the numbers come from.
+    """
+
+    part: str
+    nominal_voltage: float
+    torque_constant: float
+    resistance: float
+    rotor_inertia: float
+    nominal_torque: float
+    max_speed: float
+    mass: float
+    provenance: str
+    source: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Gearhead:
+    """One planetary gearhead, SI units.
+
+    Attributes:
+      part: catalogue name; ratio: N (motor speed / output speed); stages: number of stages;
+      efficiency: max. efficiency eta; continuous_torque, intermittent_torque: output limits, N m;
+      max_input_speed: rad/s; inertia: referred to the input, kg m^2; mass: kg; provenance, source.
+    """
+
+    part: str
+    ratio: float
+    stages: int
+    efficiency: float
+    continuous_torque: float
+    intermittent_torque: float
+    max_input_speed: float
+    inertia: float
+    mass: float
+    provenance: str
+    source: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Catalogue:
+    """Motors and gearheads by part name, and the supply voltage (V)."""
+
+    motors: dict[str, Motor]
+    gearheads: dict[str, Gearhead]
+    supply_voltage: float
+
+    def motor(self, part: str) -> Motor:
+        if part not in self.motors:
+            raise ValueError(f"unknown motor part {part!r}; known: {', '.join(self.motors)}")
+        return self.motors[part]
+
+    def gearhead(self, part: str) -> Gearhead:
+        if part not in self.gearheads:
+            raise ValueError(f"unknown gearhead part {part!r}; known: {', '.join(self.gearheads)}")
+        return self.gearheads[part]
+
+
+def _gearhead_name(ratio: float) -> str:
+    return f"GP32A-{ratio:g}"
+
+
+def load_catalogue() -> Catalogue:
+    """The shipped catalogue, converted to SI."""
+    raw = json.loads(resources.files("biped_jax").joinpath("data/maxon_catalogue.json").read_text())
+    motors = {}
+    for m in raw["motors"]:
+        motors[m["part"]] = Motor(
+            part=m["part"], nominal_voltage=m["nominal_voltage_V"],
+            torque_constant=m["torque_constant_mNm_per_A"] * MNM, resistance=m["terminal_resistance_ohm"],
+            rotor_inertia=m["rotor_inertia_gcm2"] * GCM2, nominal_torque=m["nominal_torque_mNm"] * MNM,
+            max_speed=m["max_speed_rpm"] * RPM, mass=m["mass_g"] * 1e-3, provenance=m["provenance"],
+            source=m["source"])
+    gearheads = {}
+    for g in raw["gearhead_stages"]:
+        for ratio in g["ratios"]:
+            gearheads[_gearhead_name(ratio)] = Gearhead(
+                part=_gearhead_name(ratio), ratio=float(ratio), stages=g["stages"],
+                efficiency=g["max_efficiency"], continuous_torque=g["continuous_torque_Nm"],
+                intermittent_torque=g["intermittent_torque_Nm"],
+                max_input_speed=g["max_input_speed_rpm"] * RPM, inertia=g["inertia_gcm2"] * GCM2,
+                mass=g["mass_g"] * 1e-3, provenance=g["provenance"], source=g["source"])
+    return Catalogue(motors=motors, gearheads=gearheads, supply_voltage=raw["supply_voltage_V"])
+
+
+def check_ratio(ratio: float) -> float:
+    """Raises ValueError naming a non-positive or non-finite gear ratio."""
+    if not (math.isfinite(ratio) and ratio > 0):
+        raise ValueError(f"gear ratio must be positive and finite, got {ratio!r}")
+    return ratio
+
+
+# ----------------------------------------------------------------------------- the drive model
+
+def motor_torque(joint_torque: jax.Array, joint_speed: jax.Array, ratio, efficiency) -> jax.Array:
+    """Motor torque T_m, N m (eq. 2.3): T / (N eta) when motoring (T omega >= 0), T eta / N when the
+    load back-drives the motor. Shapes broadcast."""
+    motoring = joint_torque * joint_speed >= 0
+    return jnp.where(motoring, joint_torque / (ratio * efficiency), joint_torque * efficiency / ratio)
+
+
+def motor_speed(joint_speed: jax.Array, ratio) -> jax.Array:
+    """Motor speed omega_m = N omega, rad/s (eq. 2.4)."""
+    return ratio * joint_speed
+
+
+def current(torque_at_motor: jax.Array, motor: Motor) -> jax.Array:
+    """Winding current i = T_m / k_t, A."""
+    return torque_at_motor / motor.torque_constant
+
+
+def joule_loss(torque_at_motor: jax.Array, motor: Motor) -> jax.Array:
+    """Joule loss P_J = R i^2, W."""
+    return motor.resistance * current(torque_at_motor, motor) ** 2
+
+
+def voltage(torque_at_motor: jax.Array, speed_at_motor: jax.Array, motor: Motor) -> jax.Array:
+    """Terminal voltage V = R i + k_t omega_m, V."""
+    return motor.resistance * current(torque_at_motor, motor) + motor.torque_constant * speed_at_motor
+
+
+def electrical_power(torque_at_motor: jax.Array, speed_at_motor: jax.Array, motor: Motor) -> jax.Array:
+    """P_el = V i = mechanical power T_m omega_m + Joule loss, W."""
+    return voltage(torque_at_motor, speed_at_motor, motor) * current(torque_at_motor, motor)
+
+
+def no_load_speed(motor: Motor, supply_voltage: float) -> float:
+    """No-load speed at a supply voltage, rad/s: eq. 2.5, n_mV = n_m V_s / V_m, with n_m = V_m / k_t."""
+    return supply_voltage / motor.torque_constant
+
+
+def stall_torque(motor: Motor, supply_voltage: float) -> float:
+    """Torque at zero speed at a supply voltage, N m: k_t V_s / R."""
+    return motor.torque_constant * supply_voltage / motor.resistance
+
+
+def speed_torque_gradient(motor: Motor) -> float:
+    """Slope of the speed-torque line, (rad/s) per N m: R / k_t^2."""
+    return motor.resistance / motor.torque_constant**2
+
+
+def max_speed_at_torque(torque_at_motor: jax.Array, motor: Motor, supply_voltage: float) -> jax.Array:
+    """The speed-torque line at a supply voltage: the highest motor speed (rad/s) the supply allows
+    at a motor torque |T_m| (N m)."""
+    return no_load_speed(motor, supply_voltage) - speed_torque_gradient(motor) * jnp.abs(torque_at_motor)
+
+
+def voltage_margin(torque_at_motor, speed_at_motor, motor: Motor, supply_voltage: float) -> jax.Array:
+    """Supply voltage minus the voltage an operating point needs, V (>= 0: under the line).
+
+    For motoring points (T_m omega_m >= 0) this is exactly k_t (line speed - |omega_m|); back-driven
+    points need less voltage than the back-EMF alone.
+    """
+    needed = jnp.abs(voltage(torque_at_motor, speed_at_motor, motor))
+    return supply_voltage - needed
