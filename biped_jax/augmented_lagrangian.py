@@ -1,0 +1,221 @@
+"""A batched augmented-Lagrangian solver over optax L-BFGS.
+
+Solves B problems of the same shape at once:
+
+    minimise f(x; p)  subject to  h(x; p) = 0,  g(x; p) <= 0,
+
+with x of shape (n,) and p a pytree of per-problem data. The constraints must be scaled to order one
+by the caller. One compiled, vmapped value-and-gradient function of the augmented Lagrangian
+(Powell-Hestenes-Rockafellar form) serves every iteration: the multipliers and the penalty are its
+arguments, and the backtracking (Armijo) line search runs in Python over that same function, so
+nothing is traced twice. Inner problems use ``optax.scale_by_lbfgs`` for the direction.
+
+Reference: Nocedal & Wright, Numerical Optimization (2006), Sec. 17.3-17.4 (bound-constrained
+Lagrangian, multiplier and penalty updates).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+CONVERGED, INFEASIBLE, ITERATION_LIMIT, DIVERGED = "converged", "infeasible", "iteration limit", "diverged"
+
+
+@dataclasses.dataclass(frozen=True)
+class ConstrainedProblem:
+    """``evaluate(x, params) -> (f, h, g)``: a pure function giving the objective (scalar), the
+    equalities and the inequalities (1-D arrays, possibly empty) from one evaluation, so that an
+    expensive simulation behind all three runs once."""
+
+    evaluate: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]]
+
+    @classmethod
+    def from_functions(cls, objective, equalities, inequalities) -> "ConstrainedProblem":
+        """From three separate functions of (x, params)."""
+        return cls(lambda x, p: (objective(x, p), equalities(x, p), inequalities(x, p)))
+
+
+@dataclasses.dataclass(frozen=True)
+class SolverOptions:
+    """Settings of :func:`solve`.
+
+    Attributes:
+      tolerance: largest scaled constraint violation accepted as feasible.
+      stationarity: largest |gradient of the Lagrangian| (inf-norm) accepted at convergence.
+      max_outer: multiplier updates at most.
+      max_inner: L-BFGS iterations per inner problem at most.
+      penalty_initial, penalty_growth, penalty_max: rho schedule; rho grows when the violation did not
+        fall to a quarter; a problem still infeasible at penalty_max is declared infeasible.
+      memory: L-BFGS memory.
+      armijo: sufficient-decrease constant of the line search; max_backtracks halvings at most.
+    """
+
+    tolerance: float = 1e-6
+    stationarity: float = 1e-3
+    max_outer: int = 40
+    max_inner: int = 300
+    penalty_initial: float = 10.0
+    penalty_growth: float = 10.0
+    penalty_max: float = 1e9
+    memory: int = 20
+    armijo: float = 1e-4
+    max_backtracks: int = 30
+
+
+@dataclasses.dataclass
+class SolveResult:
+    """Per-problem outcome, each array with leading batch dimension B.
+
+    Attributes:
+      x: solution, (B, n). cost: f, (B,). equalities, inequalities: h and g at x (scaled), (B, m).
+      violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf, (B,).
+      status: list of B strings. outer_iterations, gradients: counts, (B,). wall_time_s: float.
+      history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients.
+    """
+
+    x: np.ndarray
+    cost: np.ndarray
+    equalities: np.ndarray
+    inequalities: np.ndarray
+    violation: np.ndarray
+    stationarity: np.ndarray
+    status: list
+    outer_iterations: np.ndarray
+    gradients: np.ndarray
+    wall_time_s: float
+    history: list
+
+
+def _violation(h, g):
+    parts = [jnp.zeros(h.shape[:-1])]
+    if h.shape[-1]:
+        parts.append(jnp.max(jnp.abs(h), axis=-1))
+    if g.shape[-1]:
+        parts.append(jnp.max(jnp.maximum(g, 0.0), axis=-1))
+    return jnp.max(jnp.stack(parts), axis=0)
+
+
+def make_lagrangian(problem: ConstrainedProblem):
+    """Compiled, vmapped (value, (f, h, g)), gradient of the augmented Lagrangian in x."""
+    def lagrangian(x, params, lam_eq, lam_in, rho):
+        f, h, g = problem.evaluate(x, params)
+        value = f + lam_eq @ h + 0.5 * rho * h @ h
+        value = value + jnp.sum(jnp.maximum(0.0, lam_in + rho * g) ** 2 - lam_in**2) / (2 * rho)
+        return value, (f, h, g)
+    return jax.jit(jax.vmap(jax.value_and_grad(lagrangian, has_aux=True)))
+
+
+def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = SolverOptions(),
+          lagrangian=None, progress: Callable[[int, dict], None] | None = None) -> SolveResult:
+    """Solves a batch of problems.
+
+    Args:
+      problem: f, h, g.
+      x0: starting points, shape (B, n).
+      params: per-problem data, a pytree whose leaves have leading dimension B.
+      options: solver settings.
+      lagrangian: a function from :func:`make_lagrangian` to reuse across calls (saves compiling).
+      progress: called after each outer iteration with (iteration, history row).
+    """
+    started = time.perf_counter()
+    lagrangian = lagrangian or make_lagrangian(problem)
+    x = jnp.asarray(x0)
+    batch = x.shape[0]
+    optimiser = optax.scale_by_lbfgs(memory_size=options.memory)
+    init = jax.jit(jax.vmap(optimiser.init))
+    direction_fn = jax.jit(jax.vmap(lambda g, s, x_: optimiser.update(g, s, x_)))
+
+    rho = jnp.full((batch,), options.penalty_initial)
+    _, h_shape, g_shape = jax.eval_shape(problem.evaluate, x[0], jax.tree.map(lambda a: a[0], params))
+    h_size, g_size = h_shape.shape[0], g_shape.shape[0]
+    lam_eq, lam_in = jnp.zeros((batch, h_size)), jnp.zeros((batch, g_size))
+    (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
+    gradients = np.ones(batch, dtype=int)
+    active = np.ones(batch, dtype=bool)
+    status = [ITERATION_LIMIT] * batch
+    outer_iterations = np.zeros(batch, dtype=int)
+    previous_violation = np.asarray(_violation(h, g))
+    stationarity = np.full(batch, np.inf)
+    history = []
+    inner_tolerance = np.full(batch, 1.0)
+
+    for outer in range(options.max_outer):
+        if outer:  # the multipliers or the penalty changed: a new inner objective
+            (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
+            gradients += active
+        state = init(x)
+        for _inner in range(options.max_inner):
+            update, state = direction_fn(grad, state, x)
+            slope = jnp.sum(grad * update, axis=-1)  # direction is -update
+            bad = ~(slope > 0) | ~jnp.all(jnp.isfinite(update), axis=-1)
+            update = jnp.where(bad[:, None], grad, update)
+            slope = jnp.where(bad, jnp.sum(grad * grad, axis=-1), slope)
+            step = jnp.ones(batch)
+            accepted = jnp.zeros(batch, dtype=bool)
+            new = (x, value, f, h, g, grad)
+            for _ in range(options.max_backtracks):
+                trial = x - step[:, None] * update
+                (t_value, (t_f, t_h, t_g)), t_grad = lagrangian(trial, params, lam_eq, lam_in, rho)
+                gradients += active
+                ok = jnp.isfinite(t_value) & (t_value <= value - options.armijo * step * slope) & ~accepted
+                ok = ok & jnp.all(jnp.isfinite(t_grad), axis=-1)
+                pick = lambda a, b: jnp.where(ok.reshape(ok.shape + (1,) * (a.ndim - 1)), b, a)  # noqa: E731
+                new = tuple(pick(a, b) for a, b in zip(new, (trial, t_value, t_f, t_h, t_g, t_grad)))
+                accepted = accepted | ok
+                if bool(jnp.all(accepted | ~jnp.asarray(active))):
+                    break
+                step = jnp.where(accepted, step, 0.5 * step)
+            frozen = jnp.asarray(~active)
+            keep = lambda a, b: jnp.where(frozen.reshape(frozen.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            x, value, f, h, g, grad = (keep(a, b) for a, b in zip((x, value, f, h, g, grad), new))
+            gradient_norm = np.asarray(jnp.max(jnp.abs(grad), axis=-1))
+            stalled = ~np.asarray(accepted)
+            done_inner = (gradient_norm <= inner_tolerance) | stalled | ~active
+            if done_inner.all():
+                break
+        # multiplier and penalty updates (Nocedal & Wright, Framework 17.3)
+        violation = np.asarray(_violation(h, g))
+        stationarity = np.where(active, gradient_norm, stationarity)
+        lam_eq_new = lam_eq + rho[:, None] * h
+        lam_in_new = jnp.maximum(0.0, lam_in + rho[:, None] * g)
+        act = jnp.asarray(active)
+        lam_eq = jnp.where(act[:, None], lam_eq_new, lam_eq)
+        lam_in = jnp.where(act[:, None], lam_in_new, lam_in)
+        grow = active & (violation > 0.25 * previous_violation) & (violation > options.tolerance)
+        rho = jnp.where(jnp.asarray(grow), jnp.minimum(rho * options.penalty_growth, options.penalty_max), rho)
+        previous_violation = np.where(active, violation, previous_violation)
+        outer_iterations += active
+        inner_tolerance = np.where(active, np.maximum(0.1 * inner_tolerance, 0.3 * options.stationarity),
+                                   inner_tolerance)
+        finite = np.asarray(jnp.all(jnp.isfinite(x), axis=-1)) & np.isfinite(np.asarray(f))
+        row = {"cost": np.asarray(f), "violation": violation, "penalty": np.asarray(rho),
+               "gradients": gradients.copy(), "stationarity": stationarity.copy()}
+        history.append(row)
+        if progress:
+            progress(outer, row)
+        for b in range(batch):
+            if not active[b]:
+                continue
+            if not finite[b]:
+                status[b], active[b] = DIVERGED, False
+            elif violation[b] <= options.tolerance and stationarity[b] <= options.stationarity:
+                status[b], active[b] = CONVERGED, False
+            elif float(rho[b]) >= options.penalty_max and violation[b] > options.tolerance \
+                    and stationarity[b] <= options.stationarity:
+                status[b], active[b] = INFEASIBLE, False
+        if not active.any():
+            break
+    for b in range(batch):
+        if active[b] and float(rho[b]) >= options.penalty_max and previous_violation[b] > options.tolerance:
+            status[b] = INFEASIBLE
+    return SolveResult(x=np.asarray(x), cost=np.asarray(f), equalities=np.asarray(h),
+                       inequalities=np.asarray(g), violation=np.asarray(_violation(h, g)),
+                       stationarity=stationarity, status=status, outer_iterations=outer_iterations,
+                       gradients=gradients, wall_time_s=time.perf_counter() - started, history=history)

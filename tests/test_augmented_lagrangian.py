@@ -1,0 +1,82 @@
+"""The augmented-Lagrangian solver finds the known optima of small problems, in batches, and says
+so when a problem is infeasible or diverges."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax import augmented_lagrangian as al
+
+OPTIONS = al.SolverOptions(tolerance=1e-8, stationarity=1e-6)
+# The solver stops at scaled violation 1e-8 and stationarity 1e-6: solutions agree to about 1e-6.
+SOLUTION_TOLERANCE = 1e-5
+
+
+def test_equality_constrained_qp_batch_matches_the_kkt_solution():
+    """min 1/2 x'Qx + c'x  s.t.  Ax = b, three right-hand sides solved in one batch."""
+    q = jnp.array([[4.0, 1.0, 0.0], [1.0, 3.0, 0.5], [0.0, 0.5, 2.0]])
+    c = jnp.array([1.0, -2.0, 0.5])
+    a = jnp.array([[1.0, 1.0, 1.0], [1.0, -1.0, 2.0]])
+    rhs = jnp.array([[1.0, 0.0], [2.0, 1.0], [-1.0, 3.0]])
+    problem = al.ConstrainedProblem.from_functions(objective=lambda x, b: 0.5 * x @ q @ x + c @ x,
+                                    equalities=lambda x, b: a @ x - b,
+                                    inequalities=lambda x, b: jnp.zeros(0))
+    result = al.solve(problem, jnp.zeros((3, 3)), rhs, OPTIONS)
+    for k in range(3):
+        kkt = np.block([[q, a.T], [a, np.zeros((2, 2))]])
+        expected = np.linalg.solve(kkt, np.concatenate([-c, rhs[k]]))[:3]
+        np.testing.assert_allclose(result.x[k], expected, atol=SOLUTION_TOLERANCE)
+        assert result.status[k] == al.CONVERGED
+
+
+def test_inequality_constrained_qp_with_active_and_inactive_constraints():
+    """min (x-p1)^2 + (y-p2)^2  s.t.  x + y <= 1, x >= 0: projection onto a half-plane."""
+    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum((x - p) ** 2),
+                                    equalities=lambda x, p: jnp.zeros(0),
+                                    inequalities=lambda x, p: jnp.array([x[0] + x[1] - 1.0, -x[0]]))
+    targets = jnp.array([[1.0, 1.0], [0.2, 0.3], [-1.0, 3.0]])
+    result = al.solve(problem, jnp.zeros((3, 2)), targets, OPTIONS)
+    # (1,1) -> (0.5, 0.5); (0.2, 0.3) is feasible; (-1, 3) -> x = 0 and y = 1 (corner)
+    np.testing.assert_allclose(result.x, [[0.5, 0.5], [0.2, 0.3], [0.0, 1.0]], atol=SOLUTION_TOLERANCE)
+    np.testing.assert_allclose(result.cost, [0.5, 0.0, 5.0], atol=SOLUTION_TOLERANCE)
+    assert result.status == [al.CONVERGED] * 3
+
+
+def test_double_integrator_minimum_effort_transfer():
+    """x'' = u, (x, v): (0, 0) -> (1, 0) in 1 s, minimise the integral of u^2: u = 6 - 12 t, J = 12.
+
+    Piecewise-constant u on 40 intervals with exact integration: the discrete optimum is the
+    least-norm solution of the two linear end conditions (computed here), and tends to 12."""
+    n, dt = 40, 1.0 / 40
+    # exact zero-order-hold integration: end position and velocity are linear in u
+    t_left = dt * np.arange(n)
+    end_velocity = np.full(n, dt)
+    end_position = dt * (1.0 - t_left) - dt**2 / 2
+    a = np.stack([end_position, end_velocity])
+    problem = al.ConstrainedProblem.from_functions(objective=lambda u, p: dt * jnp.sum(u**2),
+                                    equalities=lambda u, p: jnp.asarray(a) @ u - jnp.array([1.0, 0.0]),
+                                    inequalities=lambda u, p: jnp.zeros(0))
+    result = al.solve(problem, jnp.zeros((1, n)), jnp.zeros((1,)), OPTIONS)
+    least_norm = a.T @ np.linalg.solve(a @ a.T, [1.0, 0.0])
+    np.testing.assert_allclose(result.x[0], least_norm, atol=1e-4)
+    assert result.cost[0] == pytest.approx(dt * np.sum(least_norm**2), rel=1e-6)
+    assert result.cost[0] == pytest.approx(12.0, rel=2e-3)  # discretisation error O(dt^2)
+    np.testing.assert_allclose(result.x[0], 6 - 12 * (t_left + dt / 2), atol=0.02)
+
+
+def test_infeasible_problem_is_reported_with_its_violation():
+    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2),
+                                    equalities=lambda x, p: jnp.zeros(0),
+                                    inequalities=lambda x, p: jnp.array([x[0] - (-1.0), 1.0 - x[0]]))
+    result = al.solve(problem, jnp.zeros((1, 1)), jnp.zeros((1,)), OPTIONS)
+    assert result.status == [al.INFEASIBLE]
+    assert result.violation[0] == pytest.approx(1.0, abs=1e-3)  # x = 0 splits the two demands
+
+
+def test_nan_is_caught_and_reported_as_diverged():
+    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2) + jnp.log(x[0] - 5.0),
+                                    equalities=lambda x, p: jnp.zeros(0),
+                                    inequalities=lambda x, p: jnp.zeros(0))
+    result = al.solve(problem, jnp.zeros((1, 2)), jnp.zeros((1,)), OPTIONS)
+    assert result.status == [al.DIVERGED]
