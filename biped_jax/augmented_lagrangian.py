@@ -48,11 +48,12 @@ class SolverOptions:
 
     Attributes:
       tolerance: largest scaled constraint violation accepted as feasible.
-      stationarity: largest |gradient of the Lagrangian| (inf-norm) accepted at convergence.
+      stationarity: largest |gradient of the Lagrangian|_inf / max(1, |f|) accepted at convergence.
       max_outer: multiplier updates at most.
       max_inner: L-BFGS iterations per inner problem at most.
       penalty_initial, penalty_growth, penalty_max: rho schedule; rho grows when the violation did not
-        fall to a quarter; a problem still infeasible at penalty_max is declared infeasible.
+        fall to a quarter and is above 10 x tolerance (near the tolerance the multipliers finish the
+        job); a problem still infeasible at penalty_max is declared infeasible.
       memory: L-BFGS memory.
       armijo: sufficient-decrease constant of the line search; max_backtracks halvings at most.
     """
@@ -75,7 +76,7 @@ class SolveResult:
 
     Attributes:
       x: solution, (B, n). cost: f, (B,). equalities, inequalities: h and g at x (scaled), (B, m).
-      violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf, (B,).
+      violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf / max(1, |f|), (B,).
       status: list of B strings. outer_iterations, gradients: counts, (B,). wall_time_s: float.
       history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients.
     """
@@ -175,7 +176,7 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
             frozen = jnp.asarray(~active)
             keep = lambda a, b: jnp.where(frozen.reshape(frozen.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
             x, value, f, h, g, grad = (keep(a, b) for a, b in zip((x, value, f, h, g, grad), new))
-            gradient_norm = np.asarray(jnp.max(jnp.abs(grad), axis=-1))
+            gradient_norm = np.asarray(jnp.max(jnp.abs(grad), axis=-1) / jnp.maximum(1.0, jnp.abs(f)))
             stalled = ~np.asarray(accepted)
             done_inner = (gradient_norm <= inner_tolerance) | stalled | ~active
             if done_inner.all():
@@ -188,7 +189,7 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
         act = jnp.asarray(active)
         lam_eq = jnp.where(act[:, None], lam_eq_new, lam_eq)
         lam_in = jnp.where(act[:, None], lam_in_new, lam_in)
-        grow = active & (violation > 0.25 * previous_violation) & (violation > options.tolerance)
+        grow = active & (violation > 0.25 * previous_violation) & (violation > 10 * options.tolerance)
         rho = jnp.where(jnp.asarray(grow), jnp.minimum(rho * options.penalty_growth, options.penalty_max), rho)
         previous_violation = np.where(active, violation, previous_violation)
         outer_iterations += active

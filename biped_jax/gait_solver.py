@@ -24,8 +24,8 @@ VIOLATION_TOLERANCE = 1e-4
 
 #: Solver settings for the gait: scaled tolerance 1e-5 keeps every group below 1e-4 in its own unit
 #: (the scales in ``biped_jax.gait`` are at most 10 own units per scaled unit).
-GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-3, max_outer=30, max_inner=400,
-                                       penalty_initial=10.0)
+GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-2, max_outer=25, max_inner=500,
+                                       penalty_initial=10.0, penalty_max=1e6)
 
 
 @dataclasses.dataclass
