@@ -30,16 +30,32 @@ CONVERGED, INFEASIBLE, ITERATION_LIMIT, DIVERGED = "converged", "infeasible", "i
 
 @dataclasses.dataclass(frozen=True)
 class ConstrainedProblem:
-    """``evaluate(x, params) -> (f, h, g)``: a pure function giving the objective (scalar), the
-    equalities and the inequalities (1-D arrays, possibly empty) from one evaluation, so that an
-    expensive simulation behind all three runs once."""
+    """A batchable constrained problem.
+
+    Attributes:
+      evaluate: ``(x, params) -> (f, h, g)``, the objective (scalar), the equalities and the
+        inequalities (1-D arrays, possibly empty) from one evaluation, so that an expensive simulation
+        behind all three runs once.
+      residuals: optional ``(x, params) -> (r, h, g)`` with f = r . r. When given, each inner problem
+        is preconditioned by the Gauss-Newton matrix of the augmented Lagrangian (a change of
+        variables x = x_k + P z with P^T H P = I), which L-BFGS then sees as well-conditioned.
+    """
 
     evaluate: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]]
+    residuals: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]] | None = None
 
     @classmethod
     def from_functions(cls, objective, equalities, inequalities) -> "ConstrainedProblem":
         """From three separate functions of (x, params)."""
         return cls(lambda x, p: (objective(x, p), equalities(x, p), inequalities(x, p)))
+
+    @classmethod
+    def from_residuals(cls, residuals) -> "ConstrainedProblem":
+        """From ``residuals(x, params) -> (r, h, g)``, the objective being r . r."""
+        def evaluate(x, p):
+            r, h, g = residuals(x, p)
+            return r @ r, h, g
+        return cls(evaluate, residuals)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -103,32 +119,64 @@ def _violation(h, g):
     return jnp.max(jnp.stack(parts), axis=0)
 
 
-def make_lagrangian(problem: ConstrainedProblem):
-    """Compiled, vmapped (value, (f, h, g)), gradient of the augmented Lagrangian in x."""
+@dataclasses.dataclass(frozen=True)
+class CompiledProblem:
+    """The compiled, vmapped functions :func:`solve` calls; build once with :func:`compile_problem`
+    and reuse across solves of the same problem shape."""
+
+    value_and_grad: Callable
+    jacobian: Callable | None
+
+
+def compile_problem(problem: ConstrainedProblem) -> CompiledProblem:
+    """value_and_grad of the augmented Lagrangian (and the residual Jacobian, if residuals exist)."""
     def lagrangian(x, params, lam_eq, lam_in, rho):
         f, h, g = problem.evaluate(x, params)
         value = f + lam_eq @ h + 0.5 * rho * h @ h
         value = value + jnp.sum(jnp.maximum(0.0, lam_in + rho * g) ** 2 - lam_in**2) / (2 * rho)
         return value, (f, h, g)
-    return jax.jit(jax.vmap(jax.value_and_grad(lagrangian, has_aux=True)))
+    value_and_grad = jax.jit(jax.vmap(jax.value_and_grad(lagrangian, has_aux=True)))
+    jacobian = None
+    if problem.residuals is not None:
+        jacobian = jax.jit(jax.vmap(jax.jacfwd(problem.residuals)))
+    return CompiledProblem(value_and_grad, jacobian)
+
+
+@jax.jit
+def _gauss_newton_preconditioner(jac_r, jac_h, jac_g, g, lam_in, rho):
+    """P with P^T H P = I for H = 2 Jr'Jr + rho Jh'Jh + rho Jg'A Jg (A: active inequalities);
+    shapes (B, m, n) -> (B, n, n)."""
+    active = (lam_in + rho[:, None] * g > 0).astype(g.dtype)
+    hessian = (2 * jnp.einsum("bmi,bmj->bij", jac_r, jac_r)
+               + rho[:, None, None] * jnp.einsum("bmi,bmj->bij", jac_h, jac_h)
+               + rho[:, None, None] * jnp.einsum("bmi,bm,bmj->bij", jac_g, active, jac_g))
+    diagonal = jnp.diagonal(hessian, axis1=1, axis2=2)
+    # Regularise: directions with no curvature keep a step of the order of the others.
+    shift = 1e-8 * jnp.max(diagonal, axis=1) + 1e-12
+    hessian = hessian + shift[:, None, None] * jnp.eye(hessian.shape[-1])
+    factor = jnp.linalg.cholesky(hessian)
+    identity = jnp.broadcast_to(jnp.eye(hessian.shape[-1]), hessian.shape)
+    return jax.scipy.linalg.solve_triangular(jnp.swapaxes(factor, 1, 2), identity, lower=False)
 
 
 def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = SolverOptions(),
-          lagrangian=None, progress: Callable[[int, dict], None] | None = None) -> SolveResult:
+          compiled: CompiledProblem | None = None,
+          progress: Callable[[int, dict], None] | None = None) -> SolveResult:
     """Solves a batch of problems.
 
     Args:
-      problem: f, h, g.
+      problem: f, h, g (and optionally the objective's residuals).
       x0: starting points, shape (B, n).
       params: per-problem data, a pytree whose leaves have leading dimension B.
       options: solver settings.
-      lagrangian: a function from :func:`make_lagrangian` to reuse across calls (saves compiling).
+      compiled: from :func:`compile_problem`, to reuse across calls (saves compiling).
       progress: called after each outer iteration with (iteration, history row).
     """
     started = time.perf_counter()
-    lagrangian = lagrangian or make_lagrangian(problem)
+    compiled = compiled or compile_problem(problem)
+    lagrangian = compiled.value_and_grad
     x = jnp.asarray(x0)
-    batch = x.shape[0]
+    batch, size = x.shape
     optimiser = optax.scale_by_lbfgs(memory_size=options.memory)
     init = jax.jit(jax.vmap(optimiser.init))
     direction_fn = jax.jit(jax.vmap(lambda g, s, x_: optimiser.update(g, s, x_)))
@@ -146,24 +194,37 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     stationarity = np.full(batch, np.inf)
     history = []
     inner_tolerance = np.full(batch, 1.0)
+    identity = jnp.broadcast_to(jnp.eye(size, dtype=x.dtype), (batch, size, size))
 
     for outer in range(options.max_outer):
         if outer:  # the multipliers or the penalty changed: a new inner objective
             (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
             gradients += active
-        state = init(x)
+        if compiled.jacobian is not None:
+            jac_r, jac_h, jac_g = compiled.jacobian(x, params)
+            gradients += active * size  # forward-mode: one directional derivative per variable
+            precondition = _gauss_newton_preconditioner(jac_r, jac_h, jac_g, g, lam_in, rho)
+            precondition = jnp.where(jnp.all(jnp.isfinite(precondition), axis=(1, 2))[:, None, None],
+                                     precondition, identity)
+        else:
+            precondition = identity
+        to_z = lambda v: jnp.einsum("bnm,bn->bm", precondition, v)  # noqa: E731  gradient in z
+        x_ref, z = x, jnp.zeros_like(x)
+        state = init(z)
+        grad_z = to_z(grad)
         for _inner in range(options.max_inner):
-            update, state = direction_fn(grad, state, x)
-            slope = jnp.sum(grad * update, axis=-1)  # direction is -update
+            update, state = direction_fn(grad_z, state, z)
+            slope = jnp.sum(grad_z * update, axis=-1)  # the step is -update
             bad = ~(slope > 0) | ~jnp.all(jnp.isfinite(update), axis=-1)
-            update = jnp.where(bad[:, None], grad, update)
-            slope = jnp.where(bad, jnp.sum(grad * grad, axis=-1), slope)
+            update = jnp.where(bad[:, None], grad_z, update)
+            slope = jnp.where(bad, jnp.sum(grad_z * grad_z, axis=-1), slope)
             step = jnp.ones(batch)
             accepted = jnp.zeros(batch, dtype=bool)
-            new = (x, value, f, h, g, grad)
+            new = (z, value, f, h, g, grad)
             for _ in range(options.max_backtracks):
-                trial = x - step[:, None] * update
-                (t_value, (t_f, t_h, t_g)), t_grad = lagrangian(trial, params, lam_eq, lam_in, rho)
+                trial = z - step[:, None] * update
+                x_trial = x_ref + jnp.einsum("bnm,bm->bn", precondition, trial)
+                (t_value, (t_f, t_h, t_g)), t_grad = lagrangian(x_trial, params, lam_eq, lam_in, rho)
                 gradients += active
                 ok = jnp.isfinite(t_value) & (t_value <= value - options.armijo * step * slope) & ~accepted
                 ok = ok & jnp.all(jnp.isfinite(t_grad), axis=-1)
@@ -175,7 +236,9 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
                 step = jnp.where(accepted, step, 0.5 * step)
             frozen = jnp.asarray(~active)
             keep = lambda a, b: jnp.where(frozen.reshape(frozen.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
-            x, value, f, h, g, grad = (keep(a, b) for a, b in zip((x, value, f, h, g, grad), new))
+            z, value, f, h, g, grad = (keep(a, b) for a, b in zip((z, value, f, h, g, grad), new))
+            grad_z = to_z(grad)
+            x = x_ref + jnp.einsum("bnm,bm->bn", precondition, z)
             gradient_norm = np.asarray(jnp.max(jnp.abs(grad), axis=-1) / jnp.maximum(1.0, jnp.abs(f)))
             stalled = ~np.asarray(accepted)
             done_inner = (gradient_norm <= inner_tolerance) | stalled | ~active

@@ -278,6 +278,12 @@ def cost(trajectory: GaitTrajectory) -> jax.Array:
     return dt * jnp.sum(trajectory.u**2)
 
 
+def cost_residuals(trajectory: GaitTrajectory) -> jax.Array:
+    """r with r . r = J: sqrt(dt) u, flattened, shape (4 T,)."""
+    dt = trajectory.t[1] - trajectory.t[0]
+    return jnp.sqrt(dt) * trajectory.u.ravel()
+
+
 def violations(groups: dict) -> dict:
     """Largest violation of each group in its own unit (0 when satisfied)."""
     out = {}

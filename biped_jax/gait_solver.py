@@ -70,14 +70,14 @@ class GaitSolver:
         self.biped = hs.load_planar_biped(mass_class_template)  # designs replace its masses
         biped, settings_ = self.biped, settings
 
-        def evaluate(x, model):
+        def residuals(x, model):
             trajectory = gait.simulate(x, model, biped, settings_)
             equalities, inequalities = gait.scaled_constraints(
                 gait.constraint_groups(trajectory, model, settings_))
-            return gait.cost(trajectory), equalities, inequalities
+            return gait.cost_residuals(trajectory), equalities, inequalities
 
-        self.problem = al.ConstrainedProblem(evaluate)
-        self.lagrangian = al.make_lagrangian(self.problem)
+        self.problem = al.ConstrainedProblem.from_residuals(residuals)
+        self.compiled = al.compile_problem(self.problem)
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
         self._initial_guess = jax.jit(jax.vmap(functools.partial(gait.initial_guess, settings=settings)))
 
@@ -90,7 +90,7 @@ class GaitSolver:
         """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts."""
         batch = jax.tree.map(lambda *leaves: jnp.stack(leaves), *models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        result = al.solve(self.problem, x0, batch, self.options, lagrangian=self.lagrangian,
+        result = al.solve(self.problem, x0, batch, self.options, compiled=self.compiled,
                           progress=progress)
         trajectories = self.simulate(jnp.asarray(result.x), batch)
         solutions = []

@@ -30,11 +30,14 @@ def test_equality_constrained_qp_batch_matches_the_kkt_solution():
         assert result.status[k] == al.CONVERGED
 
 
-def test_inequality_constrained_qp_with_active_and_inactive_constraints():
-    """min (x-p1)^2 + (y-p2)^2  s.t.  x + y <= 1, x >= 0: projection onto a half-plane."""
-    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum((x - p) ** 2),
-                                    equalities=lambda x, p: jnp.zeros(0),
-                                    inequalities=lambda x, p: jnp.array([x[0] + x[1] - 1.0, -x[0]]))
+@pytest.mark.parametrize("preconditioned", [False, True])
+def test_inequality_constrained_qp_with_active_and_inactive_constraints(preconditioned):
+    """min (x-p1)^2 + (y-p2)^2  s.t.  x + y <= 1, x >= 0: projection onto a half-plane; with and
+    without the Gauss-Newton preconditioner (the objective is a sum of squares)."""
+    def residuals(x, p):
+        return x - p, jnp.zeros(0), jnp.array([x[0] + x[1] - 1.0, -x[0]])
+    problem = (al.ConstrainedProblem.from_residuals(residuals) if preconditioned else
+               al.ConstrainedProblem(lambda x, p: (lambda r, h, g: (r @ r, h, g))(*residuals(x, p))))
     targets = jnp.array([[1.0, 1.0], [0.2, 0.3], [-1.0, 3.0]])
     result = al.solve(problem, jnp.zeros((3, 2)), targets, OPTIONS)
     # (1,1) -> (0.5, 0.5); (0.2, 0.3) is feasible; (-1, 3) -> x = 0 and y = 1 (corner)
@@ -43,7 +46,8 @@ def test_inequality_constrained_qp_with_active_and_inactive_constraints():
     assert result.status == [al.CONVERGED] * 3
 
 
-def test_double_integrator_minimum_effort_transfer():
+@pytest.mark.parametrize("preconditioned", [False, True])
+def test_double_integrator_minimum_effort_transfer(preconditioned):
     """x'' = u, (x, v): (0, 0) -> (1, 0) in 1 s, minimise the integral of u^2: u = 6 - 12 t, J = 12.
 
     Piecewise-constant u on 40 intervals with exact integration: the discrete optimum is the
@@ -54,9 +58,11 @@ def test_double_integrator_minimum_effort_transfer():
     end_velocity = np.full(n, dt)
     end_position = dt * (1.0 - t_left) - dt**2 / 2
     a = np.stack([end_position, end_velocity])
-    problem = al.ConstrainedProblem.from_functions(objective=lambda u, p: dt * jnp.sum(u**2),
-                                    equalities=lambda u, p: jnp.asarray(a) @ u - jnp.array([1.0, 0.0]),
-                                    inequalities=lambda u, p: jnp.zeros(0))
+    def residuals(u, p):
+        return jnp.sqrt(dt) * u, jnp.asarray(a) @ u - jnp.array([1.0, 0.0]), jnp.zeros(0)
+    problem = al.ConstrainedProblem.from_residuals(residuals)
+    if not preconditioned:
+        problem = al.ConstrainedProblem(problem.evaluate)
     result = al.solve(problem, jnp.zeros((1, n)), jnp.zeros((1,)), OPTIONS)
     least_norm = a.T @ np.linalg.solve(a @ a.T, [1.0, 0.0])
     np.testing.assert_allclose(result.x[0], least_norm, atol=1e-4)
