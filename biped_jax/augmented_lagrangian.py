@@ -223,6 +223,9 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
         if outer:  # the multipliers or the penalty changed: a new inner objective
             (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
             gradients += active
+        # Problems leave the inner loop one by one (inner optimum reached or line search stalled) and
+        # wait, frozen, for the others, so a finished problem never forces extra line-search trials.
+        inner_active = active.copy()
         for _inner in range(options.max_inner):
             if _inner == 0 or (compiled.jacobian is not None and _inner % options.precondition_every == 0):
                 # (re)start L-BFGS in fresh preconditioned coordinates x = x_ref + P z
@@ -249,36 +252,39 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
                 trial = z - step[:, None] * update
                 x_trial = x_ref + jnp.einsum("bnm,bm->bn", precondition, trial)
                 (t_value, (t_f, t_h, t_g)), t_grad = lagrangian(x_trial, params, lam_eq, lam_in, rho)
-                gradients += active
+                gradients += inner_active
                 ok = jnp.isfinite(t_value) & (t_value <= value - options.armijo * step * slope) & ~accepted
                 ok = ok & jnp.all(jnp.isfinite(t_grad), axis=-1)
                 pick = lambda a, b: jnp.where(ok.reshape(ok.shape + (1,) * (a.ndim - 1)), b, a)  # noqa: E731
                 new = tuple(pick(a, b) for a, b in zip(new, (trial, t_value, t_f, t_h, t_g, t_grad)))
                 accepted = accepted | ok
-                if bool(jnp.all(accepted | ~jnp.asarray(active))):
+                if bool(jnp.all(accepted | ~jnp.asarray(inner_active))):
                     break
                 step = jnp.where(accepted, step, 0.5 * step)
-            frozen = jnp.asarray(~active)
+            frozen = jnp.asarray(~inner_active)
             keep = lambda a, b: jnp.where(frozen.reshape(frozen.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
             z, value, f, h, g, grad = (keep(a, b) for a, b in zip((z, value, f, h, g, grad), new))
             grad_z = jnp.einsum("bnm,bn->bm", precondition, grad)
             x = x_ref + jnp.einsum("bnm,bm->bn", precondition, z)
             gradient_norm = np.asarray(jnp.max(jnp.abs(grad), axis=-1) / jnp.maximum(1.0, jnp.abs(f)))
             stalled = ~np.asarray(accepted)
-            done_inner = (gradient_norm <= inner_tolerance) | stalled | ~active
-            if done_inner.all():
+            inner_active &= ~((gradient_norm <= inner_tolerance) | stalled)
+            if not inner_active.any():
                 break
-        # multiplier and penalty updates (Nocedal & Wright, Framework 17.3)
+        # multiplier and penalty updates (Nocedal & Wright, Framework 17.3). Progress is measured
+        # with complementarity, max(g, -lambda/rho) (Birgin & Martinez, Practical Augmented Lagrangian
+        # Methods, 2014): a strictly feasible inequality with a positive multiplier is not converged.
         violation = np.asarray(_violation(h, g))
+        measure = np.asarray(_violation(h, jnp.abs(jnp.maximum(g, -lam_in / rho[:, None]))))
         stationarity = np.where(active, gradient_norm, stationarity)
         lam_eq_new = lam_eq + rho[:, None] * h
         lam_in_new = jnp.maximum(0.0, lam_in + rho[:, None] * g)
         act = jnp.asarray(active)
         lam_eq = jnp.where(act[:, None], lam_eq_new, lam_eq)
         lam_in = jnp.where(act[:, None], lam_in_new, lam_in)
-        grow = active & (violation > 0.25 * previous_violation) & (violation > 10 * options.tolerance)
+        grow = active & (measure > 0.25 * previous_violation) & (measure > 10 * options.tolerance)
         rho = jnp.where(jnp.asarray(grow), jnp.minimum(rho * options.penalty_growth, options.penalty_max), rho)
-        previous_violation = np.where(active, violation, previous_violation)
+        previous_violation = np.where(active, measure, previous_violation)
         outer_iterations += active
         inner_tolerance = np.where(active, np.maximum(0.1 * inner_tolerance, 0.3 * options.stationarity),
                                    inner_tolerance)
@@ -293,7 +299,7 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
                 continue
             if not finite[b]:
                 status[b], active[b] = DIVERGED, False
-            elif violation[b] <= options.tolerance and stationarity[b] <= options.stationarity:
+            elif measure[b] <= options.tolerance and stationarity[b] <= options.stationarity:
                 status[b], active[b] = CONVERGED, False
             elif float(rho[b]) >= options.penalty_max and violation[b] > options.tolerance \
                     and stationarity[b] <= options.stationarity:

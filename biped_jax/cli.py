@@ -1,9 +1,9 @@
 """The ``biped-jax`` command line.
 
-``biped-jax reproduce --out DIR`` runs the study and writes tables (markdown), figures (PNG) and
-``results.json`` into DIR. Until the gait optimiser lands it simulates one heuristic walking step per
-mass class and reports it; ``biped-jax models`` lists the robots and ``biped-jax view NAME`` opens one
-in MuJoCo's viewer.
+``biped-jax reproduce --out DIR`` runs the paper's study (optimal steps of M1-M4, the 20 W question,
+the smallest feasible power limits) and writes tables (markdown), figures (PNG) and ``results.json``
+into DIR. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
+the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 """
 
 from __future__ import annotations
@@ -123,8 +123,8 @@ def _markdown_table(summaries: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def reproduce(out: Path) -> dict:
-    """The study: for now one heuristic step per mass class (the optimiser replaces it)."""
+def heuristic_steps(out: Path) -> dict:
+    """One heuristic PD-controlled step per mass class, reported."""
     from biped_jax.heuristic_step import HeuristicGait
 
     out.mkdir(parents=True, exist_ok=True)
@@ -146,11 +146,37 @@ def reproduce(out: Path) -> dict:
     return results
 
 
+def reproduce(out: Path, steps: int, degree: int, bisections: int) -> dict:
+    """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
+    from biped_jax import study
+    from biped_jax.gait import GaitSettings
+
+    started = time.perf_counter()
+    with console.status("starting") as status:
+        def progress(message: str) -> None:
+            status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
+            if not message.startswith(("M1-M4:", "20 W:")):
+                console.log(message)
+        results = study.run_study(out, GaitSettings(steps=steps, degree=degree), bisections, progress)
+    for record in results["models"]:
+        console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g}, largest violation "
+                      f"{record['max_violation']:.1e}, smallest feasible M_W {record['min_power_limit_W']:.2f} W")
+    console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
+                  f"convergence.png in {time.perf_counter() - started:.0f} s")
+    return results
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="biped-jax", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("reproduce", help="run the paper's study and write results")
     run.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    run.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
+    run.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
+    run.add_argument("--bisections", type=int, default=6,
+                     help="bisection steps for the smallest feasible power limit (default 6)")
+    step = commands.add_parser("step", help="simulate one heuristic PD-controlled step per mass class")
+    step.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     commands.add_parser("models", help="list the robot models")
     view = commands.add_parser("view", help="open a model in MuJoCo's viewer (needs a display)")
     view.add_argument("name")
@@ -170,7 +196,13 @@ def main(argv: list[str] | None = None) -> int:
         mujoco.viewer.launch(model)
         return 0
     configure_jax()
-    reproduce(args.out)
+    if args.command == "step":
+        heuristic_steps(args.out)
+        return 0
+    for name in ("steps", "degree", "bisections"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
+    reproduce(args.out, args.steps, args.degree, args.bisections)
     return 0
 
 

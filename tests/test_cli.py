@@ -1,4 +1,4 @@
-"""The main job writes its files, and the numbers in them hang together."""
+"""The heuristic-step command writes its files, and the numbers in them hang together."""
 
 import json
 
@@ -11,11 +11,11 @@ from biped_jax import cli
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
-    cli.main(["reproduce", "--out", str(out)])
+    cli.main(["step", "--out", str(out)])
     return out, json.loads((out / "results.json").read_text())
 
 
-def test_reproduce_writes_results_table_and_figure(results):
+def test_step_writes_results_table_and_figure(results):
     out, data = results
     assert (out / "heuristic_step.png").stat().st_size > 10_000
     assert "| touched down |" in (out / "heuristic_step.md").read_text()

@@ -1,0 +1,118 @@
+"""The paper's study (Section 2.2): models M1-M4, their optimal steps, the 20 W question and the
+smallest power limit at which each model still walks."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax import augmented_lagrangian as al
+from biped_jax import gait, gait_report
+from biped_jax.gait_solver import GaitSolution, GaitSolver
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperModel:
+    """A row of the paper's Table 3 with the power limit of Section 2.2."""
+
+    name: str
+    mass_class: str
+    speed: float
+    power_limit: float
+
+
+#: Table 3 of the paper, power limits of Section 2.2 (planar-step.md).
+PAPER_MODELS = (PaperModel("M1", "12kg", 0.417, 20.0), PaperModel("M2", "12kg", 0.555, 20.0),
+                PaperModel("M3", "18kg", 0.417, 25.0), PaperModel("M4", "18kg", 0.555, 40.0))
+
+
+def _models(rows, power_limits=None, step_length: float = 0.2):
+    limits = power_limits if power_limits is not None else [r.power_limit for r in rows]
+    return [gait.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
+
+
+def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bisections: int = 6,
+                         progress: Callable[[str], None] | None = None) -> list[dict]:
+    """Bisects, per model and all models in one batch, on the power limit M_W between 0 and the
+    limit of its feasible solution, warm-starting from the last feasible gait.
+
+    Returns per model {"min_power_limit_W": smallest limit with a converged gait found,
+    "bracket_W": [largest limit that failed, that limit], "status_below": the failing status}.
+    A model without a feasible starting solution gets NaN.
+    """
+    rows = [PaperModel(s.name, "12kg" if s.mass_kg < 15 else "18kg", s.speed_mps, s.power_limit_W)
+            for s in solutions]
+    high = np.array([s.power_limit_W if s.status == al.CONVERGED else math.nan for s in solutions])
+    low = np.zeros(len(solutions))
+    status_below = ["not tried"] * len(solutions)
+    warm = np.stack([s.x for s in solutions])
+    for k in range(bisections):
+        middle = np.where(np.isfinite(high), 0.5 * (low + high), np.array([r.power_limit for r in rows]))
+        if progress:
+            progress(f"bisection {k + 1}/{bisections}: M_W = " + ", ".join(f"{m:.2f}" for m in middle))
+        trial = solver.solve([r.name for r in rows], _models(rows, middle), x0=jnp.asarray(warm))
+        for b, solution in enumerate(trial):
+            if not np.isfinite(high[b]):
+                continue
+            if solution.status == al.CONVERGED:
+                high[b], warm[b] = middle[b], solution.x
+            else:
+                low[b], status_below[b] = middle[b], solution.status
+    return [{"min_power_limit_W": float(h), "bracket_W": [float(lo), float(h)], "status_below": st}
+            for lo, h, st in zip(low, high, status_below)]
+
+
+def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bisections: int = 6,
+              progress: Callable[[str], None] | None = None) -> dict:
+    """Solves M1-M4 (one batch), M1-M4 at 20 W (one batch) and the minimal power limits; writes
+    results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png and convergence.png."""
+    say = progress or (lambda message: None)
+    out.mkdir(parents=True, exist_ok=True)
+    solver = GaitSolver(settings)
+    names = [r.name for r in PAPER_MODELS]
+
+    def report(label):
+        return lambda i, row: say(f"{label}: outer iteration {i + 1}, largest scaled violation "
+                                  f"{np.max(row['violation']):.1e}, gradients {int(np.max(row['gradients']))}")
+
+    say("compiling the gait problem and solving M1-M4 in one batch")
+    solutions = solver.solve(names, _models(PAPER_MODELS), progress=report("M1-M4"))
+    say("M1-M4 at M_W = 20 W")
+    at_20 = solver.solve(names, _models(PAPER_MODELS, [20.0] * 4),
+                         x0=jnp.stack([jnp.asarray(s.x) for s in solutions]), progress=report("20 W"))
+    say("smallest feasible power limit per model")
+    minimal = minimal_power_limits(solver, solutions, bisections, progress=say)
+
+    records = []
+    for solution, minimum in zip(solutions, minimal):
+        record = gait_report.results_record(solution)
+        record.update(minimum)
+        records.append(record)
+    results = {
+        "models": records,
+        "at_20W": [gait_report.results_record(s) for s in at_20],
+        "settings": dataclasses.asdict(settings),
+        "solver": dataclasses.asdict(solver.options),
+        "violation_tolerance_own_units": 1e-4,
+    }
+    (out / "results.json").write_text(json.dumps(results, indent=2))
+    tables = ["# The paper's four models (layout of Tables 4 and 5)", ""]
+    tables += [gait_report.markdown_table(s) for s in solutions]
+    tables += ["## At M_W = 20 W (the paper: M3 and M4 not solvable)", "",
+               "| model | status | J | largest violation |", "|---|---|---|---|"]
+    tables += [f"| {s.name} | {s.status} | {s.cost:.4g} | {s.max_violation:.1e} |" for s in at_20]
+    tables += ["", "## Smallest power limit with a feasible gait", "",
+               "| model | M_W [W] | bracket [W] |", "|---|---|---|"]
+    tables += [f"| {n} | {m['min_power_limit_W']:.2f} | {m['bracket_W'][0]:.2f}-{m['bracket_W'][1]:.2f} |"
+               for n, m in zip(names, minimal)]
+    (out / "tables.md").write_text("\n".join(tables) + "\n")
+    gait_report.plot_figure_2(solutions, out / "fig2_trajectories.png")
+    gait_report.plot_figure_3(solutions, out / "fig3_torque_rpm.png")
+    gait_report.plot_convergence(solutions, out / "convergence.png")
+    return results
