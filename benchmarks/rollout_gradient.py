@@ -8,14 +8,13 @@ program per batch size), prints a table and saves JSON.
 """
 
 import argparse
-import json
-import platform
 import time
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _results import save_results
 
 
 def rollout_cost(biped, design, q0, qd0, controls):
@@ -59,7 +58,6 @@ def main():
     controls = jnp.full((args.horizon, 4), 0.5)
     gradient = jax.grad(lambda d, q, qd, u: rollout_cost(biped, d, q, qd, u), argnums=(1, 2, 3))
 
-    device = jax.devices()[0]
     rows = []
     for batch in args.batch:
         if batch == 1:
@@ -78,17 +76,8 @@ def main():
         print(f"batch {batch:6d}: compile {compile_s:7.1f} s   run {1e3 * run_s:9.2f} ms   "
               f"{batch / run_s:10.1f} gradients/s   {1e3 * run_s / batch:8.2f} ms/gradient", flush=True)
 
-    import mujoco
-    result = {"benchmark": "rollout_gradient", "date": time.strftime("%Y-%m-%d"),
-              "device": str(device), "device_kind": getattr(device, "device_kind", "cpu"),
-              "platform": platform.platform(), "processor": platform.processor(),
-              "jax": jax.__version__, "mujoco": mujoco.__version__,
-              "dtype": "float32" if args.float32 else "float64", "horizon": args.horizon,
-              "timestep_s": 1.8e-3, "rows": rows}
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"rollout_gradient_{device.platform}.json"
-    path.write_text(json.dumps(result, indent=2))
-    print(f"device {device} ({result['device_kind']}); saved {path}")
+    save_results("rollout_gradient", {"dtype": "float32" if args.float32 else "float64",
+                                      "horizon": args.horizon, "timestep_s": 1.8e-3}, rows, args.out)
 
 
 if __name__ == "__main__":

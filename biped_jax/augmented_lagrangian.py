@@ -218,6 +218,8 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     history = []
     inner_tolerance = np.full(batch, 1.0)
     identity = jnp.broadcast_to(jnp.eye(size, dtype=x.dtype), (batch, size, size))
+    at_cap = np.zeros(batch, dtype=int)  # outer iterations spent infeasible at the penalty cap
+    best_violation = np.full(batch, np.inf)
 
     for outer in range(options.max_outer):
         if outer:  # the multipliers or the penalty changed: a new inner objective
@@ -301,9 +303,13 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
                 status[b], active[b] = DIVERGED, False
             elif measure[b] <= options.tolerance and stationarity[b] <= options.stationarity:
                 status[b], active[b] = CONVERGED, False
-            elif float(rho[b]) >= options.penalty_max and violation[b] > options.tolerance \
-                    and stationarity[b] <= options.stationarity:
-                status[b], active[b] = INFEASIBLE, False
+            elif float(rho[b]) >= options.penalty_max and violation[b] > options.tolerance:
+                at_cap[b] += 1
+                # Penalty at its cap and the violation no longer falling: no feasible point nearby.
+                if stationarity[b] <= options.stationarity or (
+                        at_cap[b] >= 3 and violation[b] > 0.9 * best_violation[b]):
+                    status[b], active[b] = INFEASIBLE, False
+            best_violation[b] = min(best_violation[b], violation[b])
         if not active.any():
             break
     for b in range(batch):

@@ -175,6 +175,10 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
     run.add_argument("--bisections", type=int, default=6,
                      help="bisection steps for the smallest feasible power limit (default 6)")
+    drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
+    drive.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    drive.add_argument("--gaits", type=Path, default=None,
+                       help="folder with trajectories.npz from `biped-jax reproduce` (default: --out)")
     step = commands.add_parser("step", help="simulate one heuristic PD-controlled step per mass class")
     step.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     commands.add_parser("models", help="list the robot models")
@@ -194,6 +198,16 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(str(error))
         import mujoco.viewer
         mujoco.viewer.launch(model)
+        return 0
+    if args.command == "drives":
+        from biped_jax import drive_selection
+        source = (args.gaits or args.out) / "trajectories.npz"
+        if not source.is_file():
+            parser.error(f"no gait trajectories at {source}: run `biped-jax reproduce --out "
+                         f"{args.gaits or args.out}` first")
+        args.out.mkdir(parents=True, exist_ok=True)
+        drive_selection.run_drive_study(args.out, drive_selection.load_workspaces(source))
+        console.print(f"wrote {args.out}/drives.json, drives.md, fig4_motor_M2.png, fig5_motor_M4.png")
         return 0
     configure_jax()
     if args.command == "step":

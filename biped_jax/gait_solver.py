@@ -81,6 +81,13 @@ class GaitSolver:
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
         self._initial_guess = jax.jit(jax.vmap(functools.partial(gait.initial_guess, settings=settings)))
 
+    def with_options(self, **changes) -> "GaitSolver":
+        """A solver sharing this one's compiled functions with other solver options."""
+        other = object.__new__(GaitSolver)
+        other.__dict__.update(self.__dict__)
+        other.options = dataclasses.replace(self.options, **changes)
+        return other
+
     def simulate(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
         """Batched rollout: x (B, n), models with leading dimension B."""
         return self._simulate(x, models)

@@ -1,11 +1,11 @@
 """One walking step of the five-link biped under a heuristic PD controller, with touchdown.
 
-A placeholder gait until the optimiser exists: the actuated joints track a straight-line blend from
+A simple reference gait (`biped-jax step`): the actuated joints track a straight-line blend from
 the start pose to its mirror image (swing knee lifted mid-step) with PD torques. The blend is indexed
 by the stance angle, not by time (a phase variable, as in hybrid-zero-dynamics control), so the swing
 foot reaches the ground when the stance leg has rotated through the step, whatever the timing; the
-stance angle itself is left to the dynamics. The step ends at the first downward crossing of the ground by the swing foot
-after mid-step, where the impact map is applied.
+stance angle itself is left to the dynamics. The step ends at the first downward crossing of the
+ground by the swing foot after mid-step, where the impact map is applied.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import augmented_lagrangian as al
-from biped_jax import gait, gait_report
+from biped_jax import drive_selection, gait, gait_report
 from biped_jax.gait_solver import GaitSolution, GaitSolver
 
 
@@ -48,6 +48,8 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bise
     """
     rows = [PaperModel(s.name, "12kg" if s.mass_kg < 15 else "18kg", s.speed_mps, s.power_limit_W)
             for s in solutions]
+    # Warm starts converge in a few outer iterations; a limit that fails after 12 is counted as failed.
+    bisection_solver = solver.with_options(max_outer=12)
     high = np.array([s.power_limit_W if s.status == al.CONVERGED else math.nan for s in solutions])
     low = np.zeros(len(solutions))
     status_below = ["not tried"] * len(solutions)
@@ -56,7 +58,7 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bise
         middle = np.where(np.isfinite(high), 0.5 * (low + high), np.array([r.power_limit for r in rows]))
         if progress:
             progress(f"bisection {k + 1}/{bisections}: M_W = " + ", ".join(f"{m:.2f}" for m in middle))
-        trial = solver.solve([r.name for r in rows], _models(rows, middle), x0=jnp.asarray(warm))
+        trial = bisection_solver.solve([r.name for r in rows], _models(rows, middle), x0=jnp.asarray(warm))
         for b, solution in enumerate(trial):
             if not np.isfinite(high[b]):
                 continue
@@ -71,7 +73,8 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bise
 def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bisections: int = 6,
               progress: Callable[[str], None] | None = None) -> dict:
     """Solves M1-M4 (one batch), M1-M4 at 20 W (one batch) and the minimal power limits; writes
-    results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png and convergence.png."""
+    results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
+    trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5)."""
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     solver = GaitSolver(settings)
@@ -115,4 +118,7 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
     gait_report.plot_figure_2(solutions, out / "fig2_trajectories.png")
     gait_report.plot_figure_3(solutions, out / "fig3_torque_rpm.png")
     gait_report.plot_convergence(solutions, out / "convergence.png")
+    say("drive train: Table 6, selection, Figs. 4-5")
+    drive_selection.save_workspaces(out / "trajectories.npz", solutions)
+    results.update(drive_selection.run_drive_study(out, drive_selection.load_workspaces(out / "trajectories.npz")))
     return results

@@ -1,7 +1,6 @@
 """The augmented-Lagrangian solver finds the known optima of small problems, in batches, and says
 so when a problem is infeasible or diverges."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest

@@ -50,3 +50,31 @@ def test_models_command_lists_every_model(capsys):
     listed = capsys.readouterr().out
     assert all(name in listed for name in ROBOTS)
     assert np.sum([line.endswith(".xml]") for line in listed.splitlines()]) == len(ROBOTS)
+
+
+@pytest.mark.slow
+def test_reproduce_writes_the_study(tmp_path):
+    """The main job at a short horizon (the compiled program is shared with tests/test_gait.py through
+    JAX's persistent cache): files exist and results.json is consistent with itself."""
+    assert cli.main(["reproduce", "--out", str(tmp_path), "--steps", "20", "--degree", "5",
+                     "--bisections", "1"]) == 0
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert [m["model"] for m in results["models"]] == ["M1", "M2", "M3", "M4"]
+    for record in results["models"]:
+        assert record["status"] == "converged"
+        assert record["max_violation"] <= 1e-4
+        assert set(record["joints"]) == {"H1", "K1", "H2", "K2"}
+        for joint in record["joints"].values():
+            assert joint["power_max"] <= record["power_limit_W"] + 1e-4
+        low, high = record["bracket_W"]
+        assert low <= high <= record["power_limit_W"]
+        assert record["min_power_limit_W"] == high
+    assert [m["power_limit_W"] for m in results["at_20W"]] == [20.0] * 4
+    for name in ("tables.md", "fig2_trajectories.png", "fig3_torque_rpm.png", "convergence.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+    assert "| Max. (W) |" in (tmp_path / "tables.md").read_text()
+
+
+def test_reproduce_rejects_bad_settings():
+    with pytest.raises(SystemExit):
+        cli.main(["reproduce", "--steps", "0"])

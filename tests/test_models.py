@@ -2,7 +2,6 @@
 input is rejected with an error naming the value."""
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest

@@ -1,0 +1,23 @@
+"""Saving benchmark results with the machine and library versions they were measured on."""
+
+import json
+import platform
+import time
+from pathlib import Path
+
+import jax
+
+
+def save_results(benchmark: str, settings: dict, rows: list, folder: Path) -> Path:
+    """Writes ``{folder}/{benchmark}_{platform}.json`` and returns its path."""
+    import mujoco
+    device = jax.devices()[0]
+    result = {"benchmark": benchmark, "date": time.strftime("%Y-%m-%d"), "device": str(device),
+              "device_kind": getattr(device, "device_kind", "cpu"), "platform": platform.platform(),
+              "processor": platform.processor(), "jax": jax.__version__, "mujoco": mujoco.__version__,
+              **settings, "rows": rows}
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{benchmark}_{device.platform}.json"
+    path.write_text(json.dumps(result, indent=2))
+    print(f"device {device} ({result['device_kind']}); saved {path}")
+    return path

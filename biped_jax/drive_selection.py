@@ -1,0 +1,242 @@
+"""Drive requirements from gait trajectories (the paper's Table 6) and the selection of a winding and
+a gear ratio (Section 2.3, Figs. 4-5).
+
+Rule for the spikes near touchdown (the paper drops them by hand): samples within ``impact_window``
+x t_f of either end of the step are left out of every requirement and check; the full maxima are
+reported beside them. "Operational" ranges are the 50th to 90th percentile, over the samples outside
+the window, of the largest joint's |torque| (or |speed|) at each instant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from biped_jax import drives
+from biped_jax.drives import MNM, RPM
+
+IMPACT_WINDOW = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class JointWorkspace:
+    """Sampled joint demand of one step.
+
+    Attributes:
+      t: sample times, shape (T,), s. speed: joint rates, shape (T, J), rad/s. torque: joint torques,
+      shape (T, J), N m. step_time: t_f, s.
+    """
+
+    t: np.ndarray
+    speed: np.ndarray
+    torque: np.ndarray
+    step_time: float
+
+    def outside_impacts(self, window: float = IMPACT_WINDOW) -> np.ndarray:
+        """Mask of the samples farther than window x t_f from either end, shape (T,)."""
+        s = self.t / self.step_time
+        return (s >= window) & (s <= 1 - window)
+
+
+def requirements(workspace: JointWorkspace, window: float = IMPACT_WINDOW) -> dict:
+    """Table 6 for one gait: torques in N m, speeds in rpm, power in W (SI except rpm at this edge)."""
+    inside = workspace.outside_impacts(window)
+    torque = np.abs(workspace.torque)
+    speed = np.abs(workspace.speed)
+    power = speed * torque
+    peak_torque = torque[inside].max(axis=1)
+    peak_speed = speed[inside].max(axis=1)
+    return {
+        "operational_torque_Nm": [float(np.percentile(peak_torque, 50)), float(np.percentile(peak_torque, 90))],
+        "max_torque_Nm": float(peak_torque.max()),
+        "operational_rpm": [float(np.percentile(peak_speed, 50) / RPM), float(np.percentile(peak_speed, 90) / RPM)],
+        "max_rpm": float(peak_speed.max() / RPM),
+        "max_power_W": float(power[inside].max()),
+        "max_torque_with_impacts_Nm": float(torque.max()),
+        "max_rpm_with_impacts": float(speed.max() / RPM),
+        "max_power_with_impacts_W": float(power.max()),
+        "impact_window_fraction": window,
+    }
+
+
+def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gearhead,
+                supply_voltage: float, window: float = IMPACT_WINDOW) -> dict:
+    """Checks one motor and gearhead on every joint's samples outside the impact window.
+
+    Returns {"feasible", "reason", "joule_energy_J", "mass_kg", "min_voltage_margin_V",
+    "rms_motor_torque_mNm", "max_motor_rpm", ...}; reason names the first failed check with numbers.
+    """
+    drives.check_ratio(gear.ratio)
+    inside = workspace.outside_impacts(window)
+    speed, torque = workspace.speed[inside], workspace.torque[inside]
+    motor_torque = np.asarray(drives.motor_torque(torque, speed, gear.ratio, gear.efficiency))
+    motor_speed = np.asarray(drives.motor_speed(speed, gear.ratio))
+    margin = np.asarray(drives.voltage_margin(motor_torque, motor_speed, motor, supply_voltage))
+    dt = float(np.median(np.diff(workspace.t)))
+    all_torque = np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio, gear.efficiency))
+    rms_motor = np.sqrt(np.mean(all_torque**2, axis=0))
+    rms_output = np.sqrt(np.mean(workspace.torque**2, axis=0))
+    joule = float(np.sum(np.asarray(drives.joule_loss(all_torque, motor))) * dt)
+    checks = [
+        (margin.min() >= 0, f"voltage: needs {supply_voltage - margin.min():.1f} V > {supply_voltage:g} V supply "
+                            f"(operating point above the speed-torque line)"),
+        (rms_motor.max() <= motor.nominal_torque,
+         f"thermal: RMS motor torque {rms_motor.max() / MNM:.1f} mNm > nominal {motor.nominal_torque / MNM:.1f} mNm"),
+        (np.abs(torque).max() <= gear.intermittent_torque,
+         f"gear: peak output torque {np.abs(torque).max():.2f} N m > intermittent {gear.intermittent_torque} N m"),
+        (rms_output.max() <= gear.continuous_torque,
+         f"gear: RMS output torque {rms_output.max():.2f} N m > continuous {gear.continuous_torque} N m"),
+        (np.abs(motor_speed).max() <= gear.max_input_speed,
+         f"gear: input speed {np.abs(motor_speed).max() / RPM:.0f} rpm > {gear.max_input_speed / RPM:.0f} rpm"),
+        (np.abs(motor_speed).max() <= motor.max_speed,
+         f"motor: speed {np.abs(motor_speed).max() / RPM:.0f} rpm > {motor.max_speed / RPM:.0f} rpm"),
+    ]
+    failed = [reason for ok, reason in checks if not ok]
+    return {"part": f"{motor.part} + {gear.part}", "motor": motor.part, "nominal_voltage_V": motor.nominal_voltage,
+            "gearhead": gear.part, "ratio": gear.ratio, "feasible": not failed,
+            "reason": failed[0] if failed else "all checks pass", "failed_checks": failed,
+            "joule_energy_J": joule, "mass_kg": motor.mass + gear.mass,
+            "min_voltage_margin_V": float(margin.min()), "rms_motor_torque_mNm": float(rms_motor.max() / MNM),
+            "max_motor_rpm": float(np.abs(motor_speed).max() / RPM)}
+
+
+def select_drive(workspaces: list[JointWorkspace], catalogue: drives.Catalogue,
+                 window: float = IMPACT_WINDOW) -> tuple[dict | None, list[dict]]:
+    """Every winding x ratio checked on all given gaits (all must pass); feasible ones ranked by Joule
+    energy per step summed over the gaits, then mass. Returns (best or None, all candidates)."""
+    candidates = []
+    for motor in catalogue.motors.values():
+        for gear in catalogue.gearheads.values():
+            results = [check_drive(w, motor, gear, catalogue.supply_voltage, window) for w in workspaces]
+            failed = [r["reason"] for r in results if not r["feasible"]]
+            candidate = dict(results[0])
+            candidate.update(feasible=not failed, reason=failed[0] if failed else "all checks pass",
+                             joule_energy_J=float(sum(r["joule_energy_J"] for r in results)),
+                             min_voltage_margin_V=min(r["min_voltage_margin_V"] for r in results))
+            candidates.append(candidate)
+    feasible = sorted((c for c in candidates if c["feasible"]), key=lambda c: (c["joule_energy_J"], c["mass_kg"]))
+    return (feasible[0] if feasible else None), candidates
+
+
+def plot_motor_workspace(workspace: JointWorkspace, catalogue: drives.Catalogue, ratios, title: str, path,
+                         windings=("RE25-30V", "RE25-42V", "RE25-48V"), window: float = IMPACT_WINDOW) -> None:
+    """Required motor torque against rpm (all joints, outside the impact window) with the speed-torque
+    lines of the given windings at the supply voltage, one panel per gear ratio (paper Figs. 4-5)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    inside = workspace.outside_impacts(window)
+    figure, axes = plt.subplots(1, len(ratios), figsize=(5 * len(ratios), 4.2), constrained_layout=True)
+    for axis, ratio in zip(np.atleast_1d(axes), ratios):
+        gear = catalogue.gearhead(f"GP32A-{ratio:g}")
+        torque = np.abs(np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio,
+                                                       gear.efficiency)))[inside]
+        speed = np.abs(workspace.speed[inside]) * gear.ratio / RPM
+        axis.scatter(torque.ravel() / MNM, speed.ravel(), s=6, alpha=0.6, label="required (all joints)")
+        line_torque = np.linspace(0, max(torque.max() / MNM * 1.2, 50), 50)
+        for part in windings:
+            motor = catalogue.motor(part)
+            line = np.asarray(drives.max_speed_at_torque(line_torque * MNM, motor, catalogue.supply_voltage)) / RPM
+            axis.plot(line_torque, line, label=f"{part} at {catalogue.supply_voltage:g} V")
+        axis.set_title(f"{title}, gear {gear.ratio:g}:1")
+        axis.set_xlabel("motor torque [mNm]")
+        axis.set_ylim(bottom=0)
+        axis.grid(alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("motor speed [rpm]")
+    np.atleast_1d(axes)[0].legend(fontsize=8)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+# ----------------------------------------------------------------------------- the study's drive part
+
+#: Which gaits each mass class's drive must serve (paper Table 3).
+MASS_CLASS_GAITS = {"12kg": ("M1", "M2"), "18kg": ("M3", "M4")}
+PAPER_CHOICE = ("RE25-42V", "GP32A-66.22")
+
+
+def save_workspaces(path, solutions) -> None:
+    """Writes the joint demand of gait solutions (``GaitSolution``) to an .npz file."""
+    from biped_jax.gait import ACTUATED_INDEX
+    arrays = {}
+    for s in solutions:
+        tr = s.trajectory
+        arrays[f"{s.name}_t"] = np.asarray(tr.t)[:-1]
+        arrays[f"{s.name}_speed"] = np.asarray(tr.qd)[:-1, ACTUATED_INDEX]
+        arrays[f"{s.name}_torque"] = np.asarray(tr.u)
+        arrays[f"{s.name}_meta"] = np.array([s.step_time_s, s.mass_kg, s.speed_mps,
+                                             1.0 if s.status == "converged" else 0.0])
+    np.savez(path, **arrays)
+
+
+def load_workspaces(path) -> dict[str, tuple[JointWorkspace, dict]]:
+    """Reads :func:`save_workspaces`' file: name -> (workspace, {mass_kg, speed_mps, converged})."""
+    data = np.load(path)
+    out = {}
+    for key in data.files:
+        if key.endswith("_meta"):
+            name = key[:-5]
+            step_time, mass, speed, converged = data[key]
+            out[name] = (JointWorkspace(t=data[f"{name}_t"], speed=data[f"{name}_speed"],
+                                        torque=data[f"{name}_torque"], step_time=float(step_time)),
+                         {"mass_kg": float(mass), "speed_mps": float(speed), "converged": bool(converged)})
+    return out
+
+
+def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
+    """Table 6, the selection per mass class, the paper's choice checked, Figs. 4-5; writes
+    drives.json, drives.md, fig4_motor_M2.png and fig5_motor_M4.png into ``out``."""
+    import json
+    from pathlib import Path
+    out = Path(out)
+    catalogue = drives.load_catalogue()
+    report = []
+    lines = ["# Drive train (Table 6 and the motor selection)", "",
+             f"Supply {catalogue.supply_voltage:g} V; samples within {IMPACT_WINDOW:.0%} of t_f of either "
+             "end of the step are left out (the paper's neglected spikes), their maxima shown in brackets.", ""]
+    for mass_class, names in MASS_CLASS_GAITS.items():
+        available = [n for n in names if n in gaits and gaits[n][1]["converged"]]
+        if not available:
+            report.append({"mass_class": mass_class, "error": "no converged gait"})
+            continue
+        workspaces = [gaits[n][0] for n in available]
+        merged = JointWorkspace(t=np.concatenate([w.t / w.step_time for w in workspaces]),
+                                speed=np.concatenate([w.speed for w in workspaces]),
+                                torque=np.concatenate([w.torque for w in workspaces]), step_time=1.0)
+        table6 = requirements(merged)
+        best, candidates = select_drive(workspaces, catalogue)
+        paper = next(c for c in candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
+        slow_best, slow_candidates = select_drive(workspaces[:1], catalogue)
+        slow_paper = next(c for c in slow_candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
+        entry = {"mass_class": mass_class, "mass_kg": gaits[available[0]][1]["mass_kg"], "gaits": available,
+                 "requirements": table6,
+                 "recommended": None if best is None else {k: best[k] for k in (
+                     "part", "motor", "gearhead", "nominal_voltage_V", "ratio", "joule_energy_J", "mass_kg")},
+                 "paper_choice": {k: paper[k] for k in ("part", "feasible", "reason", "joule_energy_J")},
+                 f"recommended_for_{available[0]}_only": None if slow_best is None else slow_best["part"],
+                 f"paper_choice_for_{available[0]}_only": {k: slow_paper[k] for k in ("feasible", "reason")},
+                 "candidates": [{k: c[k] for k in ("part", "ratio", "nominal_voltage_V", "feasible", "reason",
+                                                   "joule_energy_J", "mass_kg")} for c in candidates]}
+        report.append(entry)
+        r = table6
+        lines += [f"## {mass_class} ({', '.join(available)})", "",
+                  "| Table 6 | value |", "|---|---|",
+                  "| Operational torque | {:.2f}-{:.2f} N m |".format(*r["operational_torque_Nm"]),
+                  f"| Maximum torque | {r['max_torque_Nm']:.2f} N m ({r['max_torque_with_impacts_Nm']:.2f}) |",
+                  f"| Operational rpm | {r['operational_rpm'][0]:.0f}-{r['operational_rpm'][1]:.0f} rpm |",
+                  f"| Maximum rpm | {r['max_rpm']:.0f} rpm ({r['max_rpm_with_impacts']:.0f}) |",
+                  f"| Maximum power | {r['max_power_W']:.1f} W ({r['max_power_with_impacts_W']:.1f}) |", "",
+                  f"Recommended: **{best['part'] if best else 'none feasible'}**"
+                  + (f" (Joule energy {best['joule_energy_J']:.2f} J per step over the gaits)" if best else ""),
+                  f"; the paper's 42 V + 66:1: {'feasible' if paper['feasible'] else 'fails: ' + paper['reason']}; "
+                  f"for {available[0]} alone: {slow_best['part'] if slow_best else 'none feasible'} "
+                  f"(paper's: {'feasible' if slow_paper['feasible'] else slow_paper['reason']}).", "",
+                  f"{sum(c['feasible'] for c in candidates)} of {len(candidates)} winding x ratio pairs pass.", ""]
+    (out / "drives.json").write_text(json.dumps(report, indent=2))
+    (out / "drives.md").write_text("\n".join(lines) + "\n")
+    for name, figure in (("M2", "fig4_motor_M2.png"), ("M4", "fig5_motor_M4.png")):
+        if name in gaits:
+            plot_motor_workspace(gaits[name][0], catalogue, (51, 66.22, 79), name, out / figure)
+    return {"drives": report}
