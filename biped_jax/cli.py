@@ -155,7 +155,7 @@ def reproduce(out: Path, steps: int, degree: int, bisections: int) -> dict:
     with console.status("starting") as status:
         def progress(message: str) -> None:
             status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
-            if not message.startswith(("M1-M4:", "20 W:")):
+            if not message.startswith(("M1-M4:", "20 W:", "restart:")):
                 console.log(message)
         results = study.run_study(out, GaitSettings(steps=steps, degree=degree), bisections, progress)
     for record in results["models"]:
