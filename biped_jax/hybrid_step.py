@@ -30,6 +30,7 @@ from biped_jax.design import (
     DesignLayout,
     apply_design,
     design_layout,
+    nominal_design,
 )
 
 mjx = robots.import_mjx()
@@ -132,7 +133,6 @@ def planar_layouts() -> tuple[DesignLayout, DesignLayout]:
 
 def planar_design(mass_class: str = "12kg") -> Design:
     """The design stored in the MJCF file of a mass class."""
-    from biped_jax.design import nominal_design
     _check_mass_class(mass_class)
     return nominal_design(robots.load_mj_model(f"biped5_pinned_{mass_class}"), planar_layouts()[0])
 
