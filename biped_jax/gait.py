@@ -25,6 +25,7 @@ import numpy as np
 
 from biped_jax import hybrid_step as hs
 from biped_jax.design import Design
+from biped_jax.robot_specs import PLANAR_SPECS
 
 mjx = hs.mjx
 
@@ -85,13 +86,16 @@ class GaitModel:
 
 
 def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
-    """A problem of planar-step.md; raises ValueError naming a non-positive speed, limit or length."""
+    """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly"); raises
+    ValueError naming a non-positive speed, limit or length, or a step beyond the legs' reach."""
     for name, value in (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive, got {value!r}")
-    if step_length >= 2 * 0.29:
-        raise ValueError(f"step_length {step_length} m is beyond the legs' reach (< 0.58 m)")
-    return GaitModel(design=hs.planar_design(mass_class), speed=jnp.asarray(float(speed)),
+    design = hs.planar_design(mass_class)
+    reach = 2 * PLANAR_SPECS[mass_class].leg_length
+    if step_length >= reach:
+        raise ValueError(f"step_length {step_length} m is beyond the legs' reach (< {reach:.3g} m)")
+    return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),
                      power_limit=jnp.asarray(float(power_limit)))
 

@@ -98,7 +98,8 @@ def _pyplot():
 STYLES = {"M1": "-", "M2": "-.", "M3": "--", "M4": ":"}
 
 
-def plot_figure_2(solutions: list[GaitSolution], path: Path) -> None:
+def plot_figure_2(solutions: list[GaitSolution], path: Path,
+                  title: str = "Optimal steps (M1 solid, M2 dash-dot, M3 dashed, M4 dotted)") -> None:
     """Joint angle, velocity, torque and power over the step, models overlaid (paper Fig. 2)."""
     plt = _pyplot()
     figure, axes = plt.subplots(4, 4, figsize=(14, 11), sharex=True, constrained_layout=True)
@@ -122,7 +123,7 @@ def plot_figure_2(solutions: list[GaitSolution], path: Path) -> None:
     for axis in axes.flat:
         axis.grid(alpha=0.3)
     axes[0, 0].legend()
-    figure.suptitle("Optimal steps (M1 solid, M2 dash-dot, M3 dashed, M4 dotted)")
+    figure.suptitle(title)
     figure.savefig(path, dpi=110)
     plt.close(figure)
 

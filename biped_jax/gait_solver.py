@@ -18,6 +18,7 @@ import numpy as np
 from biped_jax import augmented_lagrangian as al
 from biped_jax import gait
 from biped_jax import hybrid_step as hs
+from biped_jax.robot_specs import PLANAR_SPECS
 
 #: Largest violation accepted, in each constraint group's own unit.
 VIOLATION_TOLERANCE = 1e-4
@@ -79,7 +80,8 @@ class GaitSolver:
         self.problem = al.ConstrainedProblem.from_residuals(residuals)
         self.compiled = al.compile_problem(self.problem)
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
-        self._initial_guess = jax.jit(jax.vmap(functools.partial(gait.initial_guess, settings=settings)))
+        self._initial_guess = jax.jit(jax.vmap(functools.partial(
+            gait.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
 
     def with_options(self, **changes) -> "GaitSolver":
         """A solver sharing this one's compiled functions with other solver options."""

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from biped_jax.robot_specs import (
+    KELLY_BIPED,
     PLANAR_12KG,
     PLANAR_18KG,
     DonaldSpec,
@@ -88,6 +89,11 @@ def _link_inertial(mass: float, box, centre) -> str:
     return _inertial(centre, mass, box_inertia(mass, box))
 
 
+def _planar_inertial(s: PlanarBipedSpec, link: str, z: float) -> str:
+    """Inertial of a five-link biped link whose centre of mass lies at height z on the body's axis."""
+    return _inertial((0, 0, z), getattr(s, f"{link}_mass"), s.link_inertia(link))
+
+
 def planar_pinned_xml(spec: PlanarBipedSpec, name: str, timestep: float = 0.005) -> str:
     """The single-support chain: stance foot pinned at the world origin by the ``stance`` hinge.
 
@@ -102,26 +108,26 @@ def planar_pinned_xml(spec: PlanarBipedSpec, name: str, timestep: float = 0.005)
                           flags=_NO_CONTACT_FLAGS, floor_contact="") + f"""\
     <body name="shank1">
       <joint name="stance"/>
-      {_link_inertial(s.shank_mass, s.shank_box, (0, 0, half_shank))}
+      {_planar_inertial(s, "shank", s.shank_length - s.link_com("shank"))}
       {_box_geom(s.shank_box, (0, 0, half_shank), "0.3 0.5 0.8 1")}
       <site name="foot1"/>
       <body name="thigh1" pos="0 0 {s.shank_length:.10g}">
         <joint name="knee1" axis="0 -1 0"/>
-        {_link_inertial(s.thigh_mass, s.thigh_box, (0, 0, half_thigh))}
+        {_planar_inertial(s, "thigh", s.thigh_length - s.link_com("thigh"))}
         {_box_geom(s.thigh_box, (0, 0, half_thigh), "0.3 0.5 0.8 1")}
         <site name="knee1"/>
         <body name="torso" pos="0 0 {s.thigh_length:.10g}">
           <joint name="hip1" axis="0 -1 0"/>
-          {_link_inertial(s.torso_mass, s.torso_box, (0, 0, s.torso_length / 2))}
+          {_planar_inertial(s, "torso", s.link_com("torso"))}
           {_box_geom(s.torso_box, (0, 0, s.torso_length / 2))}
           <site name="hip"/>
           <body name="thigh2">
             <joint name="hip2"/>
-            {_link_inertial(s.thigh_mass, s.thigh_box, (0, 0, -half_thigh))}
+            {_planar_inertial(s, "thigh", -s.link_com("thigh"))}
             {_box_geom(s.thigh_box, (0, 0, -half_thigh), "0.8 0.5 0.3 1")}
             <body name="shank2" pos="0 0 {-s.thigh_length:.10g}">
               <joint name="knee2"/>
-              {_link_inertial(s.shank_mass, s.shank_box, (0, 0, -half_shank))}
+              {_planar_inertial(s, "shank", -s.link_com("shank"))}
               {_box_geom(s.shank_box, (0, 0, -half_shank), "0.8 0.5 0.3 1")}
               <site name="knee2"/>
               <site name="foot2" pos="0 0 {-s.shank_length:.10g}"/>
@@ -149,11 +155,11 @@ def _planar_leg(s: PlanarBipedSpec, leg: int, rgba: str) -> str:
     return f"""\
       <body name="thigh{leg}">
         <joint name="hip{leg}"/>
-        {_link_inertial(s.thigh_mass, s.thigh_box, (0, 0, -half_thigh))}
+        {_planar_inertial(s, "thigh", -s.link_com("thigh"))}
         {_box_geom(s.thigh_box, (0, 0, -half_thigh), rgba)}
         <body name="shank{leg}" pos="0 0 {-s.thigh_length:.10g}">
           <joint name="knee{leg}"/>
-          {_link_inertial(s.shank_mass, s.shank_box, (0, 0, -half_shank))}
+          {_planar_inertial(s, "shank", -s.link_com("shank"))}
           {_box_geom(s.shank_box, (0, 0, -half_shank), rgba)}
           <site name="knee{leg}"/>
           <site name="foot{leg}" pos="0 0 {-s.shank_length:.10g}"/>
@@ -176,7 +182,7 @@ def planar_floating_xml(spec: PlanarBipedSpec, name: str, timestep: float = 0.00
       <joint name="rootx" type="slide" axis="1 0 0"/>
       <joint name="rootz" type="slide" axis="0 0 1"/>
       <joint name="pitch"/>
-      {_link_inertial(s.torso_mass, s.torso_box, (0, 0, s.torso_length / 2))}
+      {_planar_inertial(s, "torso", s.link_com("torso"))}
       {_box_geom(s.torso_box, (0, 0, s.torso_length / 2))}
       <site name="hip"/>
 {_planar_leg(s, 1, "0.3 0.5 0.8 1")}{_planar_leg(s, 2, "0.8 0.5 0.3 1")}    </body>
@@ -344,6 +350,8 @@ def model_sources() -> dict[str, str]:
         sources[f"humanoid16_{mass}.xml"] = humanoid_xml(HumanoidSpec(planar=spec), f"humanoid16_{mass}")
         sources[f"humanoid16_flatfoot_{mass}.xml"] = humanoid_xml(
             HumanoidSpec(planar=spec, foot="flat"), f"humanoid16_flatfoot_{mass}")
+    sources["biped5_pinned_kelly.xml"] = planar_pinned_xml(KELLY_BIPED, "biped5_pinned_kelly")
+    sources["biped5_floating_kelly.xml"] = planar_floating_xml(KELLY_BIPED, "biped5_floating_kelly")
     sources["donald.xml"] = donald_xml(DonaldSpec())
     return sources
 

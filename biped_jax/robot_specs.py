@@ -46,6 +46,10 @@ class PlanarBipedSpec:
       thigh_length, shank_length: m, along the link (paper Table 1, d_x).
       torso_width: m, lateral size of the torso box (paper Table 1, d_y); no effect in the plane.
       gravity: m/s^2.
+      shank_com, thigh_com, torso_com: distance of the link's centre of mass from the knee (shank),
+        the hip (thigh) and the hip (torso), m; None puts it in the middle of the box.
+      shank_inertia, thigh_inertia, torso_inertia: pitch inertia about the centre of mass, kg m^2
+        (used for all three principal axes); None takes the uniform box's.
     """
 
     torso_mass: float = 7.355
@@ -56,9 +60,36 @@ class PlanarBipedSpec:
     shank_length: float = 0.15
     torso_width: float = 0.25
     gravity: float = GRAVITY
+    shank_com: float | None = None
+    thigh_com: float | None = None
+    torso_com: float | None = None
+    shank_inertia: float | None = None
+    thigh_inertia: float | None = None
+    torso_inertia: float | None = None
 
     def __post_init__(self):
-        _require_positive(**dataclasses.asdict(self))
+        _require_positive(**{k: v for k, v in dataclasses.asdict(self).items() if v is not None})
+        for link in ("shank", "thigh", "torso"):
+            com, length = getattr(self, f"{link}_com"), getattr(self, f"{link}_length")
+            if com is not None and com >= length:
+                raise ValueError(f"{link}_com {com} m lies beyond the link's length {length} m")
+
+    @property
+    def leg_length(self) -> float:
+        """Hip to foot with the knee straight, m."""
+        return self.thigh_length + self.shank_length
+
+    def link_com(self, link: str) -> float:
+        """Centre of mass of ``link`` (shank, thigh, torso) from its upper (shank: knee; thigh, torso:
+        hip) joint, m."""
+        com = getattr(self, f"{link}_com")
+        return getattr(self, f"{link}_length") / 2 if com is None else com
+
+    def link_inertia(self, link: str) -> tuple[float, float, float]:
+        """Principal inertia of ``link`` about its centre of mass, kg m^2."""
+        pitch = getattr(self, f"{link}_inertia")
+        mass = getattr(self, f"{link}_mass")
+        return box_inertia(mass, getattr(self, f"{link}_box")) if pitch is None else (pitch,) * 3
 
     @property
     def total_mass(self) -> float:
@@ -80,6 +111,14 @@ class PlanarBipedSpec:
 #: Paper Table 2.
 PLANAR_12KG = PlanarBipedSpec()
 PLANAR_18KG = PlanarBipedSpec(torso_mass=11.03, thigh_mass=1.742, shank_mass=1.742)
+#: Kelly's five-link biped (M. Kelly, SIAM Review 59(4), 2017, Section 7 and its OptimTraj code):
+#: a public trajectory-optimisation benchmark, used to validate the gait optimiser.
+KELLY_BIPED = PlanarBipedSpec(
+    torso_mass=20.0, thigh_mass=6.8, shank_mass=3.2, torso_length=0.625, thigh_length=0.4,
+    shank_length=0.4, shank_com=0.128, thigh_com=0.163, torso_com=0.425, shank_inertia=0.93,
+    thigh_inertia=1.08, torso_inertia=2.22)
+#: Parameter sets of the sagittal biped by name: the paper's two mass classes and Kelly's benchmark.
+PLANAR_SPECS = {"12kg": PLANAR_12KG, "18kg": PLANAR_18KG, "kelly": KELLY_BIPED}
 
 
 @dataclasses.dataclass(frozen=True)

@@ -14,6 +14,10 @@ ROBOTS: dict[str, tuple[str, str]] = {
     "biped5_pinned_18kg": ("biped5_pinned_18kg.xml", "five-link biped, stance foot pinned, 18 kg"),
     "biped5_floating_12kg": ("biped5_floating_12kg.xml", "five-link biped, floating planar base, 12 kg"),
     "biped5_floating_18kg": ("biped5_floating_18kg.xml", "five-link biped, floating planar base, 18 kg"),
+    "biped5_pinned_kelly": ("biped5_pinned_kelly.xml",
+                            "Kelly's five-link biped (SIAM Review 2017), stance foot pinned"),
+    "biped5_floating_kelly": ("biped5_floating_kelly.xml",
+                              "Kelly's five-link biped (SIAM Review 2017), floating planar base"),
     "humanoid16_12kg": ("humanoid16_12kg.xml", "16-DoF humanoid, point feet, 12 kg"),
     "humanoid16_18kg": ("humanoid16_18kg.xml", "16-DoF humanoid, point feet, 18 kg"),
     "humanoid16_flatfoot_12kg": ("humanoid16_flatfoot_12kg.xml", "16-DoF humanoid, flat feet, 12 kg"),
@@ -21,8 +25,8 @@ ROBOTS: dict[str, tuple[str, str]] = {
     "donald": ("donald.xml", "DONALD, the 4-DoF prototype with a sideways pendulum"),
 }
 
-#: The sagittal biped's two mass classes (paper Table 2).
-PLANAR_MASS_CLASSES = ("12kg", "18kg")
+#: Parameter sets of the sagittal biped: the paper's two mass classes (Table 2) and Kelly's benchmark.
+PLANAR_MASS_CLASSES = ("12kg", "18kg", "kelly")
 
 
 def models_dir() -> Path:

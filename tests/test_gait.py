@@ -45,6 +45,13 @@ def test_bad_problem_data_is_rejected(arguments, message):
         gait.gait_model(**values)
 
 
+def test_reach_follows_the_robots_legs():
+    """Kelly's biped has 0.8 m legs: a 0.7 m step is fine there, 1.6 m is not."""
+    assert float(gait.gait_model("kelly", 0.7, 1e6, step_length=0.7).step_length) == 0.7
+    with pytest.raises(ValueError, match="1.6 m is beyond the legs' reach"):
+        gait.gait_model("kelly", 0.7, 1e6, step_length=1.6)
+
+
 def test_unknown_mass_class_is_rejected():
     with pytest.raises(ValueError, match="'15kg'"):
         gait.gait_model("15kg", 0.5, 20.0)

@@ -12,7 +12,7 @@ from biped_jax.robot_specs import DonaldSpec, HumanoidSpec, PlanarBipedSpec
 mjx = robots.import_mjx()
 
 # Table 2 masses sum to 11.999 and 17.998 kg; the flat-foot humanoid adds two 0.2 kg feet (ours).
-TOTAL_MASS = {"12kg": 11.999, "18kg": 17.998}
+TOTAL_MASS = {"12kg": 11.999, "18kg": 17.998, "kelly": 40.0}
 
 
 def test_committed_models_match_generators():
@@ -36,11 +36,28 @@ def test_model_loads_and_steps_in_mujoco_and_mjx(name):
     data = jax.jit(mjx.forward)(model, data)
     np.testing.assert_allclose(data.qacc, mj_data.qacc, atol=1e-6 * (1 + np.abs(mj_data.qacc).max()))
     if name.startswith(("biped5", "humanoid")):
-        mass_class = name[-4:]
+        mass_class = name.rsplit("_", 1)[1]
         spec = HumanoidSpec()
         extra = (0.0 if name.startswith("biped5") else
                  2 * (spec.flat_foot_mass if "flatfoot" in name else spec.point_foot_mass))
         assert np.sum(mj_model.body_mass) == pytest.approx(TOTAL_MASS[mass_class] + extra, abs=1e-6)
+
+
+def test_kelly_biped_follows_kelly_2017():
+    """Link centres of mass and inertias of Kelly's benchmark, checked on the standing floating model
+    against the numbers of the paper (not the spec object)."""
+    model = robots.load_mj_model("biped5_floating_kelly")
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    mujoco.mj_forward(model, data)
+    height = {name: data.xipos[model.body(name).id][2] for name in ("torso", "thigh1", "shank2")}
+    assert height["torso"] == pytest.approx(0.8 + 0.425)  # hip at 0.8 m, COM 0.425 m above it
+    assert height["thigh1"] == pytest.approx(0.8 - 0.163)  # 0.163 m below the hip
+    assert height["shank2"] == pytest.approx(0.4 - 0.128)  # 0.128 m below the knee
+    pitch_inertia = {name: model.body_inertia[model.body(name).id][1] for name in ("torso", "thigh1", "shank1")}
+    assert pitch_inertia == pytest.approx({"torso": 2.22, "thigh1": 1.08, "shank1": 0.93})
+    com_height = (2 * 3.2 * 0.272 + 2 * 6.8 * 0.637 + 20 * 1.225) / 40
+    assert data.subtree_com[0][2] == pytest.approx(com_height)
 
 
 def test_donald_masses_follow_table_7():
@@ -77,6 +94,11 @@ def test_malformed_mjcf_names_the_file(tmp_path):
 def test_non_positive_spec_values_are_rejected(field, value):
     with pytest.raises(ValueError, match=field):
         PlanarBipedSpec(**{field: value})
+
+
+def test_centre_of_mass_beyond_the_link_is_rejected():
+    with pytest.raises(ValueError, match="thigh_com 0.5"):
+        PlanarBipedSpec(thigh_com=0.5)
 
 
 def test_humanoid_and_donald_specs_reject_bad_values():
