@@ -131,13 +131,18 @@ class CompiledProblem:
     jacobian: Callable | None
 
 
+def lagrangian_value(f, h, g, lam_eq, lam_in, rho):
+    """The Powell-Hestenes-Rockafellar augmented Lagrangian of one problem (scalars and 1-D arrays):
+    f + lam_eq.h + rho/2 |h|^2 + (|max(0, lam_in + rho g)|^2 - |lam_in|^2) / (2 rho)."""
+    value = f + lam_eq @ h + 0.5 * rho * h @ h
+    return value + jnp.sum(jnp.maximum(0.0, lam_in + rho * g) ** 2 - lam_in**2) / (2 * rho)
+
+
 def compile_problem(problem: ConstrainedProblem) -> CompiledProblem:
     """value_and_grad of the augmented Lagrangian (and the residual Jacobian, if residuals exist)."""
     def lagrangian(x, params, lam_eq, lam_in, rho):
         f, h, g = problem.evaluate(x, params)
-        value = f + lam_eq @ h + 0.5 * rho * h @ h
-        value = value + jnp.sum(jnp.maximum(0.0, lam_in + rho * g) ** 2 - lam_in**2) / (2 * rho)
-        return value, (f, h, g)
+        return lagrangian_value(f, h, g, lam_eq, lam_in, rho), (f, h, g)
     value_and_grad = jax.jit(jax.vmap(jax.value_and_grad(lagrangian, has_aux=True)))
     jacobian = None
     if problem.residuals is not None:

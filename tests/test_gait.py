@@ -119,3 +119,44 @@ def test_table_values_are_recomputed_from_the_trajectory(m2_solution):
     assert record["model"] == "M2" and record["mass_kg"] == pytest.approx(11.999)
     assert record["max_vertical_force_N"] == pytest.approx(np.max(np.asarray(tr.ground_force)[:, 1]))
     assert "| Max. (W) |" in gait_report.markdown_table(m2_solution)
+
+
+def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
+    """The optimiser's MJX rollout (controller, Euler, ground force, impact map) against the same step
+    computed with MuJoCo's C library and a numpy impact map."""
+    from biped_jax.mujoco_reference import CGaitRollout
+    reference = CGaitRollout("12kg", SETTINGS).simulate(m2_solution.x, 0.555, 0.2)
+    mjx_step = m2_solution.trajectory
+    for name in ("q", "qd", "qdd", "u", "ground_force", "swing_foot", "heights", "swing_foot_velocity"):
+        expected = np.asarray(getattr(reference, name))
+        np.testing.assert_allclose(getattr(mjx_step, name), expected, rtol=1e-7,
+                                   atol=1e-8 * (1 + np.abs(expected).max()), err_msg=name)
+    for name in ("q", "qd", "impulse", "old_stance_foot_velocity"):
+        np.testing.assert_allclose(getattr(mjx_step.touchdown, name), getattr(reference.touchdown, name),
+                                   rtol=1e-7, atol=1e-8, err_msg=f"touchdown.{name}")
+
+
+def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_solution):
+    """The gradient the optimiser follows (MJX autodiff of the augmented Lagrangian) against central
+    differences of the same function evaluated with MuJoCo C."""
+    from biped_jax.mujoco_reference import CGaitRollout
+    model = gait.gait_model("12kg", 0.555, 20.0)
+    rollout = CGaitRollout("12kg", SETTINGS)
+    x = np.asarray(m2_solution.x) + 0.01 * np.cos(np.arange(SETTINGS.size))  # off the optimum
+    h_size, g_size = (a.size for a in gait.scaled_constraints(gait.constraint_groups(
+        m2_solution.trajectory, model, SETTINGS)))
+    lam_eq, lam_in, rho = 0.3 * np.ones(h_size), 0.2 * np.ones(g_size), 50.0
+
+    def lagrangian_c(x_):
+        trajectory = rollout.simulate(x_, 0.555, 0.2)
+        h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, SETTINGS))
+        return float(al.lagrangian_value(gait.cost(trajectory), h, g, lam_eq, lam_in, rho))
+
+    batch = jax.tree.map(lambda a: a[None], model)
+    (value, _), gradient = solver.compiled.value_and_grad(
+        jnp.asarray(x)[None], batch, jnp.asarray(lam_eq)[None], jnp.asarray(lam_in)[None], jnp.array([rho]))
+    assert float(value[0]) == pytest.approx(lagrangian_c(x), rel=1e-9)
+    step = 1e-6
+    central = np.array([(lagrangian_c(x + step * e) - lagrangian_c(x - step * e)) / (2 * step)
+                        for e in np.eye(x.size)])
+    np.testing.assert_allclose(gradient[0], central, rtol=1e-5, atol=1e-5 * np.abs(central).max())
