@@ -3,7 +3,8 @@
 ``biped-jax reproduce --out DIR`` runs the paper's study (optimal steps of M1-M4, the 20 W question,
 the smallest feasible power limits) and writes tables (markdown), figures (PNG) and ``results.json``
 into DIR. ``biped-jax kelly --out DIR`` solves Kelly's five-link biped benchmark with the same optimiser
-and writes ``kelly.json``. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
+and writes ``kelly.json``. ``biped-jax donald`` walks DONALD in MJX.
+``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
 the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 """
 
@@ -189,6 +190,22 @@ def kelly(out: Path, steps: int, degree: int) -> dict:
     return record
 
 
+def donald_walk(out: Path, steps: int) -> dict:
+    """DONALD's walk; see :func:`biped_jax.donald_study.run_donald`."""
+    from biped_jax import donald_study
+
+    started = time.perf_counter()
+    with console.status("starting") as status:
+        report = donald_study.run_donald(out, steps, lambda message: status.update(message))
+    verdict = "fell" if report["fell"] else "did not fall"
+    console.print(f"DONALD: {report['steps']} touchdowns, {report['distance_m']:.3f} m forward at "
+                  f"{report['speed_mps']:.4f} m/s, {verdict}; smallest static-stability margin in single "
+                  f"support {1e3 * report['min_support_margin_m']:.1f} mm")
+    console.print(f"wrote {out}/donald.json, donald_walk.png, donald_torque_speed.png, donald_replay.npz "
+                  f"in {time.perf_counter() - started:.0f} s")
+    return report
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="biped-jax", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -203,6 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     bench.add_argument("--steps", type=int, default=200,
                        help="Euler steps per walking step of the coarse grid; the fine grid has twice as many")
     bench.add_argument("--degree", type=int, default=8, help="Bezier degree of the joint references")
+    walker = commands.add_parser("donald", help="DONALD's statically stable walk in MJX (figures, JSON)")
+    walker.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    walker.add_argument("--steps", type=int, default=8, help="steps to walk (default 8)")
     drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
     drive.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     drive.add_argument("--gaits", type=Path, default=None,
@@ -212,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     commands.add_parser("models", help="list the robot models")
     view = commands.add_parser("view", help="open a model in MuJoCo's viewer (needs a display)")
     view.add_argument("name")
+    view.add_argument("--replay", type=Path, default=None,
+                      help="an .npz with t and qpos (e.g. out/donald_replay.npz) to play back")
     args = parser.parse_args(argv)
 
     from biped_jax import robots
@@ -225,7 +247,17 @@ def main(argv: list[str] | None = None) -> int:
         except ValueError as error:
             parser.error(str(error))
         import mujoco.viewer
-        mujoco.viewer.launch(model)
+        if args.replay is None:
+            mujoco.viewer.launch(model)
+            return 0
+        replay = np.load(args.replay)
+        data = mujoco.MjData(model)
+        with mujoco.viewer.launch_passive(model, data) as viewer:
+            for t, qpos in zip(np.diff(replay["t"], prepend=0.0), replay["qpos"]):
+                data.qpos[:] = qpos
+                mujoco.mj_forward(model, data)
+                viewer.sync()
+                time.sleep(float(t))
         return 0
     if args.command == "drives":
         from biped_jax import drive_selection
@@ -246,6 +278,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     if args.command == "kelly":
         kelly(args.out, args.steps, args.degree)
+        return 0
+    if args.command == "donald":
+        donald_walk(args.out, args.steps)
         return 0
     reproduce(args.out, args.steps, args.degree, args.bisections)
     return 0

@@ -111,11 +111,12 @@ DEFAULT_GAINS = Gains(stiffness=jnp.array([60.0, 40.0, 40.0, 60.0, 20.0]),
                       damping=jnp.array([3.0, 2.0, 2.0, 3.0, 1.0]))
 
 
-def pd_torque(gains: Gains, drive: Drive, q, qd, q_ref, qd_ref) -> tuple[jax.Array, jax.Array]:
-    """(applied torque, commanded torque), shape (5,) each: the PD command clipped to the drive."""
+def pd_torque(gains: Gains, drive: Drive, q, qd, q_ref, qd_ref) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """(applied torque, commanded torque, (low, high) drive limits), shapes (5,), (5,), (2, 5): the PD
+    command clipped to what the drive gives at the joint speed ``qd``."""
     command = gains.stiffness * (q_ref - q) + gains.damping * (qd_ref - qd)
     low, high = torque_limits(drive, qd)
-    return jnp.clip(command, low, high), command
+    return jnp.clip(command, low, high), command, jnp.stack([low, high])
 
 
 # ----------------------------------------------------------------------------- the heuristic gait
@@ -130,7 +131,7 @@ class DonaldGait:
         pelvis forward by about leg_length x sin(alpha).
       lift_angle: extra roll delta about the support ankle that lifts the swing foot, rad.
       pendulum_angle: pendulum swing over the support foot, rad (pi/2 = horizontal).
-      shift_time, lift_time, swing_time, lower_time, transfer_time: phase durations, s.
+      shift_time, lift_time, swing_time, lower_time: phase durations, s.
     """
 
     step_angle: jax.Array
@@ -140,17 +141,16 @@ class DonaldGait:
     lift_time: jax.Array
     swing_time: jax.Array
     lower_time: jax.Array
-    transfer_time: jax.Array
 
     @property
     def step_time(self) -> jax.Array:
-        return self.shift_time + self.lift_time + self.swing_time + self.lower_time + self.transfer_time
+        return self.shift_time + self.lift_time + self.swing_time + self.lower_time
 
 
 DEFAULT_GAIT = DonaldGait(step_angle=jnp.asarray(0.18), lift_angle=jnp.asarray(0.15),
-                          pendulum_angle=jnp.asarray(1.4), shift_time=jnp.asarray(0.8),
-                          lift_time=jnp.asarray(0.5), swing_time=jnp.asarray(0.8),
-                          lower_time=jnp.asarray(0.5), transfer_time=jnp.asarray(0.8))
+                          pendulum_angle=jnp.asarray(1.4), shift_time=jnp.asarray(1.2),
+                          lift_time=jnp.asarray(0.8), swing_time=jnp.asarray(0.8),
+                          lower_time=jnp.asarray(0.5))
 #: Standing still before the first step, s.
 SETTLE_TIME = 0.5
 
@@ -169,10 +169,12 @@ def keyframes(gait: DonaldGait, steps: int) -> tuple[jax.Array, jax.Array]:
         support_hip, swing_hip = (HIP1, HIP2) if side > 0 else (HIP2, HIP1)
         phases = (
             (gait.shift_time, {PENDULUM: -side * gait.pendulum_angle}),
-            (gait.lift_time, {ANKLE1: side * gait.lift_angle, ANKLE2: side * gait.lift_angle}),
+            # Unloading the rear foot lets the robot rock forward over the front foot's heel onto its
+            # sole: the support leg comes upright, the swing leg trails behind.
+            (gait.lift_time, {ANKLE1: side * gait.lift_angle, ANKLE2: side * gait.lift_angle,
+                              support_hip: 0.0, swing_hip: gait.step_angle if k else 0.0}),
             (gait.swing_time, {swing_hip: -gait.step_angle}),
             (gait.lower_time, {ANKLE1: 0.0, ANKLE2: 0.0}),
-            (gait.transfer_time, {support_hip: gait.step_angle, swing_hip: 0.0}),
         )
         for duration, changes in phases:
             for joint, value in changes.items():
@@ -214,7 +216,9 @@ class DonaldRun:
 
     Attributes:
       t: times, shape (S,), s. qpos: (S, 12) (free joint 7 + 5 joints). qvel: (S, 11).
+      joint_angle, joint_speed: the actuated joints in actuator order, (S, 5), rad and rad/s.
       torque: applied joint torques, (S, 5), N m. command: PD torques before the drive limit, (S, 5).
+      torque_limit: the drive's (lowest, highest) torque at the joint speed of that step, (S, 2, 5).
       reference: joint references, (S, 5), rad. com: centre of mass, (S, 3), m.
       foot_position: foot-plate centres (foot 1, foot 2), (S, 2, 3), m.
       foot_rotation: their orientations, (S, 2, 3, 3). ground_force: total contact force on the
@@ -224,8 +228,11 @@ class DonaldRun:
     t: jax.Array
     qpos: jax.Array
     qvel: jax.Array
+    joint_angle: jax.Array
+    joint_speed: jax.Array
     torque: jax.Array
     command: jax.Array
+    torque_limit: jax.Array
     reference: jax.Array
     com: jax.Array
     foot_position: jax.Array
@@ -233,33 +240,120 @@ class DonaldRun:
     ground_force: jax.Array
 
 
-def simulate(model, gait: DonaldGait, gains: Gains, drive: Drive, steps: int, duration: float,
-             record_every: int = 10) -> DonaldRun:
-    """Walks ``steps`` steps (then stands) for ``duration`` s in MJX; pure and jittable with
-    ``steps``, ``duration`` and ``record_every`` static."""
-    dt = float(model.opt.timestep)
-    count = int(round(duration / dt / record_every))
-    poses, times = keyframes(gait, steps)
-    foot_geoms = jnp.array([mjx.name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"foot{k}") for k in (1, 2)])
-    data = mjx.make_data(model)
-    data = data.replace(qpos=jnp.asarray(model.qpos0))
-    joint_q = jnp.array([model.jnt_qposadr[mjx.name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]
-                         for j in DONALD_ACTUATED_JOINTS])
-    joint_v = jnp.array([model.jnt_dofadr[mjx.name2id(model, mujoco.mjtObj.mjOBJ_JOINT, j)]
-                         for j in DONALD_ACTUATED_JOINTS])
+def walker(mj_model: mujoco.MjModel, steps: int, duration: float, record_every: int = 10):
+    """A compiled walk: ``walk(model, gait, gains, drive) -> DonaldRun``.
 
-    def physics_step(data, _):
-        q_ref, qd_ref = reference(poses, times, data.time)
-        torque, command = pd_torque(gains, drive, data.qpos[joint_q], data.qvel[joint_v], q_ref, qd_ref)
-        data = mjx.step(model, data.replace(ctrl=torque))
-        return data, (torque, command, q_ref)
+    ``model`` is the MJX model (its masses, armature and friction may differ from ``mj_model``'s, which
+    only fixes names, sizes and the time step); ``steps`` steps are walked, then the robot stands until
+    ``duration`` s. The state is sampled every ``record_every`` physics steps.
+    """
+    count = int(round(duration / mj_model.opt.timestep / record_every))
+    foot_geoms = np.array([mj_model.geom(f"foot{k}").id for k in (1, 2)])
+    joint_q = np.array([mj_model.joint(j).qposadr[0] for j in DONALD_ACTUATED_JOINTS])
+    joint_v = np.array([mj_model.joint(j).dofadr[0] for j in DONALD_ACTUATED_JOINTS])
 
-    def record_step(data, _):
-        data, (torque, command, q_ref) = jax.lax.scan(physics_step, data, None, length=record_every)
-        sample = (data.time, data.qpos, data.qvel, torque[-1], command[-1], q_ref[-1], data.subtree_com[0],
-                  data.geom_xpos[foot_geoms], data.geom_xmat[foot_geoms], data.qfrc_constraint[:3])
-        return data, sample
+    @jax.jit
+    def walk(model, gait: DonaldGait, gains: Gains, drive: Drive) -> DonaldRun:
+        poses, times = keyframes(gait, steps)
 
-    data = mjx.forward(model, data)
-    _, samples = jax.lax.scan(record_step, data, None, length=count)
-    return DonaldRun(*samples)
+        def physics_step(data, _):
+            q_ref, qd_ref = reference(poses, times, data.time)
+            speed = data.qvel[joint_v]
+            torque, command, limit = pd_torque(gains, drive, data.qpos[joint_q], speed, q_ref, qd_ref)
+            data = mjx.step(model, data.replace(ctrl=torque))
+            return data, (data.qpos[joint_q], speed, torque, command, limit, q_ref)
+
+        def record_step(data, _):
+            data, (angle, speed, torque, command, limit, q_ref) = jax.lax.scan(
+                physics_step, data, None, length=record_every)
+            # the last physics step's torque with the joint state it was computed from
+            sample = (data.time, data.qpos, data.qvel, angle[-1], speed[-1], torque[-1], command[-1], limit[-1],
+                      q_ref[-1],
+                      data.subtree_com[0], data.geom_xpos[foot_geoms], data.geom_xmat[foot_geoms],
+                      data.qfrc_constraint[:3])
+            return data, sample
+
+        data = mjx.forward(model, mjx.make_data(model))
+        _, samples = jax.lax.scan(record_step, data, None, length=count)
+        return DonaldRun(*samples)
+
+    return walk
+
+
+# ----------------------------------------------------------------------------- analysis
+
+#: A foot-plate corner lower than this counts as touching the ground, m (contacts are soft).
+CONTACT_HEIGHT = 2e-3
+
+
+def sole_corners(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> np.ndarray:
+    """World positions of the four bottom corners of each foot plate, shape (S, 2, 4, 3), m."""
+    hx, hy, hz = np.asarray(spec.foot_size) / 2
+    local = np.array([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
+    rotation = np.asarray(run.foot_rotation).reshape(*np.shape(run.foot_rotation)[:2], 3, 3)
+    return np.asarray(run.foot_position)[:, :, None, :] + np.einsum("sfij,cj->sfci", rotation, local)
+
+
+def _margin(point: np.ndarray, corners: np.ndarray) -> float:
+    """Signed distance (m) of a 2-D point inside the convex hull of 2-4 corners (negative outside)."""
+    if len(corners) < 3:  # an edge or a corner: nothing is inside
+        a, b = corners[0], corners[-1]
+        t = np.clip(np.dot(point - a, b - a) / max(np.dot(b - a, b - a), 1e-12), 0, 1)
+        return -float(np.linalg.norm(point - (a + t * (b - a))))
+    centre = corners.mean(axis=0)
+    ordered = corners[np.argsort(np.arctan2(*(corners - centre).T[::-1]))]
+    margin = np.inf
+    for a, b in zip(ordered, np.roll(ordered, -1, axis=0)):
+        edge = b - a
+        normal = np.array([edge[1], -edge[0]]) / np.linalg.norm(edge)  # outward for counter-clockwise
+        margin = min(margin, -float(np.dot(point - a, normal)))
+    return margin
+
+
+def support_phases(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample: which feet touch the ground, (S, 2) bool, and the centre of mass's margin inside
+    the support polygon in single support (NaN in double support or flight), (S,), m."""
+    corners = sole_corners(run, spec)
+    touching_corner = corners[..., 2] < CONTACT_HEIGHT
+    touching = touching_corner.any(axis=2)
+    com = np.asarray(run.com)[:, :2]
+    margin = np.full(len(com), np.nan)
+    for s in np.flatnonzero(touching.sum(axis=1) == 1):
+        foot = int(np.argmax(touching[s]))
+        margin[s] = _margin(com[s], corners[s, foot, touching_corner[s, foot], :2])
+    return touching, margin
+
+
+def walk_report(run: DonaldRun, drive: Drive, gains: Gains, spec: DonaldSpec = DonaldSpec()) -> dict:
+    """Steps, distance, falls, static-stability margin and the joints against the drive's limits."""
+    touching, margin = support_phases(run, spec)
+    single = ~np.isnan(margin)
+    # A step is a touchdown: a foot in the air in one sample and on the ground in the next.
+    touchdowns = int(np.sum(~touching[:-1] & touching[1:]))
+    qpos = np.asarray(run.qpos)
+    speed = np.asarray(run.joint_speed)
+    torque = np.asarray(run.torque)
+    low, high = np.asarray(run.torque_limit)[:, 0], np.asarray(run.torque_limit)[:, 1]
+    # Share of the drive's torque available in the torque's direction at that speed (1: on the line).
+    available = np.where(torque >= 0, high, -low)
+    use = np.where(available > 1e-9, np.abs(torque) / np.maximum(available, 1e-9), 1.0)
+    return {
+        "steps": touchdowns,
+        "distance_m": float(np.asarray(run.com)[-1, 0] - np.asarray(run.com)[0, 0]),
+        "duration_s": float(np.asarray(run.t)[-1]),
+        "fell": bool(qpos[:, 2].min() < 0.8 * qpos[0, 2]),
+        "lowest_pelvis_m": float(qpos[:, 2].min()),
+        "single_support_fraction": float(single.mean()),
+        "min_support_margin_m": float(np.nanmin(margin)) if single.any() else float("nan"),
+        "joints": {name: {"max_torque_Nm": float(np.abs(torque[:, k]).max()),
+                          "max_speed_rad_s": float(np.abs(speed[:, k]).max()),
+                          "max_fraction_of_drive_limit": float(use[:, k].max()),
+                          "saturated_fraction": float(np.mean(np.abs(
+                              np.asarray(run.command)[:, k] - torque[:, k]) > 1e-9))}
+                   for k, name in enumerate(DONALD_ACTUATED_JOINTS)},
+        "gains": {"stiffness_Nm_per_rad": np.asarray(gains.stiffness).tolist(),
+                  "damping_Nms_per_rad": np.asarray(gains.damping).tolist()},
+        "drive": {"ratio": float(drive.ratio), "supply_voltage_V": float(drive.supply_voltage),
+                  "reflected_inertia_kgm2": float(drive.reflected_inertia),
+                  "gear_torque_limit_Nm": float(drive.gear_torque_limit)},
+    }

@@ -191,7 +191,7 @@ class DonaldSpec:
     module_mass: float = 0.376
     base_plate_mass: float = 0.137
     gear_ratio: float = 245.96
-    hip_half_width: float = 0.07
+    hip_half_width: float = 0.055
     pendulum_mass: float = 0.4
     pendulum_length: float = 0.2
     friction: float = 0.8

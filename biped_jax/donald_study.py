@@ -1,0 +1,104 @@
+"""`biped-jax donald`: DONALD's heuristic walk in MJX, its report, figures and a replay file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax import donald
+from biped_jax.drives import RPM
+
+#: Standing still after the last step, s (shows that the robot stays up).
+FINAL_STAND = 1.0
+
+
+def walk(steps: int = 8, gait: donald.DonaldGait = donald.DEFAULT_GAIT,
+         gains: donald.Gains = donald.DEFAULT_GAINS) -> tuple[donald.DonaldRun, donald.Drive]:
+    """Simulates ``steps`` steps of ``gait`` (and a final stand) in MJX."""
+    if steps < 1:
+        raise ValueError(f"steps must be at least 1, got {steps}")
+    drive = donald.donald_drive()
+    mj_model, model = donald.load_donald(drive)
+    duration = float(donald.keyframes(gait, steps)[1][-1]) + FINAL_STAND
+    return donald.walker(mj_model, steps, duration)(model, gait, gains, drive), drive
+
+
+def plot_walk(run: donald.DonaldRun, path: Path) -> None:
+    """Centre of mass and feet over time (forward and sideways), and a top view."""
+    from biped_jax.gait_report import _pyplot
+    plt = _pyplot()
+    t, com, feet = np.asarray(run.t), np.asarray(run.com), np.asarray(run.foot_position)
+    touching, margin = donald.support_phases(run)
+    figure, axes = plt.subplots(3, 1, figsize=(10, 10), constrained_layout=True)
+    for k, (label, axis) in enumerate((("forward x [m]", axes[0]), ("sideways y [m]", axes[1]))):
+        axis.plot(t, com[:, k], "k", label="centre of mass")
+        for foot, colour in ((0, "tab:blue"), (1, "tab:orange")):
+            axis.plot(t, feet[:, foot, k], color=colour, label=f"foot {foot + 1}")
+        axis.set_ylabel(label)
+        axis.grid(alpha=0.3)
+    single = ~np.isnan(margin)
+    axes[1].fill_between(t, -0.12, 0.12, where=single, color="0.9", label="single support")
+    axes[0].legend(loc="upper left")
+    axes[1].set_xlabel("time [s]")
+    corners = donald.sole_corners(run)
+    for s in np.flatnonzero(single)[::10]:
+        foot = int(np.argmax(touching[s]))
+        outline = corners[s, foot, [0, 1, 3, 2, 0], :2]
+        axes[2].plot(outline[:, 0], outline[:, 1], color=("tab:blue", "tab:orange")[foot], lw=0.5)
+    axes[2].plot(com[:, 0], com[:, 1], "k", lw=1, label="centre of mass")
+    axes[2].plot(com[single, 0], com[single, 1], "r.", ms=2, label="in single support")
+    axes[2].set_aspect("equal")
+    axes[2].set_xlabel("x [m]")
+    axes[2].set_ylabel("y [m]")
+    axes[2].legend(loc="upper left")
+    axes[2].set_title(f"top view: supporting sole and centre of mass (smallest margin "
+                      f"{1e3 * np.nanmin(margin):.1f} mm)")
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def plot_torque_speed(run: donald.DonaldRun, drive: donald.Drive, path: Path) -> None:
+    """Joint torque against joint speed for every joint, with the drive's limits (speed-torque lines
+    at +-V_s through the gear, and the gear's torque limit)."""
+    from biped_jax.gait_report import _pyplot
+    plt = _pyplot()
+    speed, torque = np.asarray(run.joint_speed), np.asarray(run.torque)
+    figure, axes = plt.subplots(1, 5, figsize=(18, 4), sharey=True, constrained_layout=True)
+    line_speed = np.linspace(-5.0, 5.0, 201)
+    low, high = (np.asarray(a) for a in donald.torque_limits(drive, jnp.asarray(line_speed)))
+    for k, (axis, name) in enumerate(zip(axes, donald.DONALD_ACTUATED_JOINTS)):
+        axis.plot(line_speed / RPM, high, "r-", lw=1, label=f"drive limit at {float(drive.supply_voltage):g} V")
+        axis.plot(line_speed / RPM, low, "r-", lw=1)
+        axis.plot(speed[:, k] / RPM, torque[:, k], ".", ms=2, label="walk")
+        axis.set_title(name)
+        axis.set_xlabel("joint speed [rpm]")
+        axis.set_ylim(-1.2 * float(drive.gear_torque_limit), 1.2 * float(drive.gear_torque_limit))
+        axis.grid(alpha=0.3)
+    axes[0].set_ylabel("joint torque [N m]")
+    axes[0].legend(loc="lower left", fontsize=8)
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+
+
+def run_donald(out: Path, steps: int = 8, progress: Callable[[str], None] | None = None) -> dict:
+    """Walks, then writes donald.json, donald_walk.png, donald_torque_speed.png and donald_replay.npz
+    (time and qpos, for ``biped-jax view donald --replay``)."""
+    say = progress or (lambda message: None)
+    out.mkdir(parents=True, exist_ok=True)
+    say(f"compiling and simulating {steps} steps of DONALD in MJX")
+    run, drive = walk(steps)
+    report = donald.walk_report(run, drive, donald.DEFAULT_GAINS)
+    gait = donald.DEFAULT_GAIT
+    report["gait"] = {name: float(getattr(gait, name)) for name in gait.__dataclass_fields__}
+    report["steps_commanded"] = steps
+    # walking speed over the stepping itself (not the initial settle and final stand)
+    report["speed_mps"] = report["distance_m"] / (steps * float(gait.step_time))
+    (out / "donald.json").write_text(json.dumps(report, indent=2))
+    plot_walk(run, out / "donald_walk.png")
+    plot_torque_speed(run, drive, out / "donald_torque_speed.png")
+    np.savez_compressed(out / "donald_replay.npz", t=np.asarray(run.t), qpos=np.asarray(run.qpos))
+    return report
