@@ -75,6 +75,19 @@ def test_reproduce_writes_the_study(tmp_path):
     assert "| Max. (W) |" in (tmp_path / "tables.md").read_text()
 
 
+def test_donald_command_writes_its_report(tmp_path):
+    assert cli.main(["donald", "--out", str(tmp_path), "--steps", "2"]) == 0
+    report = json.loads((tmp_path / "donald.json").read_text())
+    assert report["steps"] == 2 and not report["fell"] and report["distance_m"] > 0.04
+    assert report["speed_mps"] == pytest.approx(report["distance_m"] / (2 * sum(
+        report["gait"][f"{phase}_time"] for phase in ("shift", "lift", "swing", "lower"))))
+    assert set(report["joints"]) == {"ankle1", "hip1", "hip2", "ankle2", "pendulum"}
+    replay = np.load(tmp_path / "donald_replay.npz")
+    assert replay["qpos"].shape == (len(replay["t"]), 12)
+    for name in ("donald_walk.png", "donald_torque_speed.png"):
+        assert (tmp_path / name).stat().st_size > 1000
+
+
 def test_reproduce_rejects_bad_settings():
     with pytest.raises(SystemExit):
         cli.main(["reproduce", "--steps", "0"])

@@ -1,0 +1,106 @@
+"""DONALD under contact in MJX: standing weight, the drive-limited PD loop, and a short walk."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax import donald, donald_study, drives
+
+STEPS = 2  # one compiled walker (2 steps) serves every test here
+
+
+@pytest.fixture(scope="module")
+def setup():
+    drive = donald.donald_drive()
+    mj_model, model = donald.load_donald(drive)
+    # the same program as `biped-jax donald --steps 2` (shared through the persistent cache)
+    duration = float(donald.keyframes(donald.DEFAULT_GAIT, STEPS)[1][-1]) + donald_study.FINAL_STAND
+    return mj_model, model, drive, donald.walker(mj_model, STEPS, duration)
+
+
+@pytest.fixture(scope="module")
+def standing(setup):
+    """Feet never lift: no tilt, no swing; the pendulum still moves out and holds."""
+    _, model, drive, walk = setup
+    gait = dataclasses.replace(donald.DEFAULT_GAIT, step_angle=jnp.asarray(0.0), lift_angle=jnp.asarray(0.0))
+    return walk(model, gait, donald.DEFAULT_GAINS, drive)
+
+
+@pytest.fixture(scope="module")
+def walking(setup):
+    _, model, drive, walk = setup
+    return walk(model, donald.DEFAULT_GAIT, donald.DEFAULT_GAINS, drive)
+
+
+def test_standing_robot_ground_force_equals_its_weight(setup, standing):
+    mj_model = setup[0]
+    weight = float(mj_model.body_mass.sum()) * 9.81
+    force = np.asarray(standing.ground_force)
+    t = np.asarray(standing.t)
+    still = (t > 0.2) & (t < donald.SETTLE_TIME)  # settled on the soft contacts, pendulum not yet moving
+    np.testing.assert_allclose(force[still, 2], weight, rtol=1e-3)
+    np.testing.assert_allclose(force[still, :2], 0.0, atol=1e-3 * weight)
+    assert np.all(donald.support_phases(standing)[0][still])  # both feet down
+
+
+def test_pd_loop_holds_the_pendulum_with_the_expected_stiffness(standing):
+    """At the end the pendulum holds its angle against gravity: error = m g l sin(q) / K_p."""
+    spec = donald.DonaldSpec()
+    q = float(np.asarray(standing.joint_angle)[-1, donald.PENDULUM])
+    q_ref = float(np.asarray(standing.reference)[-1, donald.PENDULUM])
+    gravity_torque = spec.pendulum_mass * 9.81 * spec.pendulum_length * np.sin(abs(q))
+    expected_error = gravity_torque / float(donald.DEFAULT_GAINS.stiffness[donald.PENDULUM])
+    assert abs(q_ref) == pytest.approx(float(donald.DEFAULT_GAIT.pendulum_angle))
+    assert abs(q_ref - q) == pytest.approx(expected_error, rel=0.03)
+    assert abs(float(np.asarray(standing.joint_speed)[-1, donald.PENDULUM])) < 1e-3
+
+
+def test_drive_limits_follow_the_motor_line():
+    """Torque limits from the datasheet numbers: k_t (+-V - k_t N omega) / R through the gear."""
+    drive = donald.donald_drive()
+    motor = drives.load_catalogue().motors[donald.DONALD_MOTOR]
+    n, eta, v = 245.96, 0.60, donald.DONALD_SUPPLY_VOLTAGE
+    speed = jnp.array([0.0, 1.0, 3.0, 3.9, 4.5, -2.0])
+    low, high = (np.asarray(a) for a in donald.torque_limits(drive, speed))
+    omega_m = n * np.asarray(speed)
+    motor_high = motor.torque_constant * (v - motor.torque_constant * omega_m) / motor.resistance
+    motor_low = motor.torque_constant * (-v - motor.torque_constant * omega_m) / motor.resistance
+    expected_high = np.clip(np.where(motor_high * speed >= 0, eta, 1 / eta) * n * motor_high, -6.5, 6.5)
+    expected_low = np.clip(np.where(motor_low * speed >= 0, eta, 1 / eta) * n * motor_low, -6.5, 6.5)
+    np.testing.assert_allclose(high, expected_high, rtol=1e-12)
+    np.testing.assert_allclose(low, expected_low, rtol=1e-12)
+    # at the no-load speed the drive gives no more torque forward
+    no_load = v / motor.torque_constant / n
+    assert float(donald.torque_limits(drive, jnp.asarray(no_load))[1]) == pytest.approx(0.0, abs=1e-9)
+    # the PD command is applied inside the limits and clipped onto them outside
+    applied, command, _ = donald.pd_torque(donald.DEFAULT_GAINS, drive, jnp.zeros(5), jnp.full(5, 3.9),
+                                           jnp.full(5, 0.2), jnp.full(5, 3.9))
+    limit = float(donald.torque_limits(drive, jnp.asarray(3.9))[1])
+    expected = np.minimum(np.asarray(command), limit)
+    np.testing.assert_allclose(applied, expected, rtol=1e-12)
+    assert np.any(np.asarray(command) > limit)  # the test exercises saturation
+
+
+def test_walk_saturates_exactly_on_the_recorded_limits(walking):
+    torque, command = np.asarray(walking.torque), np.asarray(walking.command)
+    low, high = np.asarray(walking.torque_limit)[:, 0], np.asarray(walking.torque_limit)[:, 1]
+    assert np.all(torque >= low - 1e-12) and np.all(torque <= high + 1e-12)
+    np.testing.assert_allclose(torque, np.clip(command, low, high), atol=1e-12)
+
+
+def test_short_walk_makes_forward_progress_statically_stable(walking):
+    report = donald.walk_report(walking, donald.donald_drive(), donald.DEFAULT_GAINS)
+    assert report["steps"] == STEPS
+    assert not report["fell"]
+    assert report["distance_m"] > 0.04  # about leg length x sin(step angle) per step after the first
+    assert report["min_support_margin_m"] > 0.0
+    assert report["single_support_fraction"] > 0.1
+
+
+def test_unknown_drive_parts_are_named():
+    with pytest.raises(ValueError, match="'RE99'"):
+        donald.donald_drive(motor="RE99")
+    with pytest.raises(ValueError, match="'GP32A-7'"):
+        donald.donald_drive(gear="GP32A-7")
