@@ -152,9 +152,10 @@ def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_
         h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, SETTINGS))
         return float(al.lagrangian_value(gait.cost(trajectory), h, g, lam_eq, lam_in, rho))
 
-    batch = jax.tree.map(lambda a: a[None], model)
+    # a batch of four, the shape paper_solutions compiled, so no new program is compiled here
+    tile = lambda a: jnp.broadcast_to(jnp.asarray(a), (4,) + jnp.shape(a))  # noqa: E731
     (value, _), gradient = solver.compiled.value_and_grad(
-        jnp.asarray(x)[None], batch, jnp.asarray(lam_eq)[None], jnp.asarray(lam_in)[None], jnp.array([rho]))
+        tile(x), jax.tree.map(tile, model), tile(lam_eq), tile(lam_in), tile(rho))
     assert float(value[0]) == pytest.approx(lagrangian_c(x), rel=1e-9)
     step = 1e-6
     central = np.array([(lagrangian_c(x + step * e) - lagrangian_c(x - step * e)) / (2 * step)
