@@ -1,0 +1,122 @@
+"""Making DONALD faster: its gait parameters optimised for speed by single shooting through the MJX
+contact simulation, with the augmented-Lagrangian solver of the gait optimiser.
+
+Decision vector (7 numbers, scaled so each is of order one): step angle, lift angle and pendulum
+angle (rad), and the shift, lift, swing and lower durations (s), as multiples of the default gait's.
+The objective is minus the walking speed over steps 2 and 3 of a three-step walk (step 1 starts from
+standing). Constraints, at the physics samples of the planned phases:
+
+- static stability: while the swing foot is planned to be in the air, the centre of mass projects
+  inside the support sole with at least :data:`STABILITY_MARGIN` (distance to the sole's edges, in
+  the sole's frame);
+- the swing foot clears the ground by :data:`FOOT_CLEARANCE` during the swing (no scuffing, so the
+  planned single support is real);
+- the pelvis stays above :data:`PELVIS_HEIGHT` (no fall);
+- durations at least :data:`MIN_DURATION`, angles within :data:`ANGLE_BOUNDS`.
+
+The motor limits need no constraint: every joint's torque is clipped to its drive's speed-torque line
+inside the simulation, so a gait that asks for more than the motors give fails the other constraints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax import augmented_lagrangian as al
+from biped_jax import donald
+
+STEPS = 3
+STABILITY_MARGIN = 0.01  # m
+FOOT_CLEARANCE = 0.003  # m
+PELVIS_HEIGHT = 0.30  # m
+MIN_DURATION = 0.2  # s
+ANGLE_BOUNDS = {"step_angle": (0.05, 0.35), "lift_angle": (0.05, 0.3), "pendulum_angle": (0.3, 1.57)}
+PARAMETERS = ("step_angle", "lift_angle", "pendulum_angle", "shift_time", "lift_time", "swing_time",
+              "lower_time")
+#: Simulated time, s: long enough for the slowest gait the bounds allow to finish three steps.
+DURATION = donald.SETTLE_TIME + STEPS * 4.0
+
+
+def differentiable_donald(drive: donald.Drive):
+    """DONALD with one constraint-solver iteration per step: MJX's solver loop is a while_loop, which
+    reverse mode cannot differentiate; a single Newton iteration (warm-started) is a scan
+    (mjx-notes.md). The walk is re-checked with the full solver after optimising."""
+    mj_model, _ = donald.load_donald(drive)
+    mj_model.opt.iterations = 1
+    from biped_jax import robots
+    return mj_model, robots.put_mjx_model(mj_model)
+
+
+def gait_from_vector(z: jax.Array, base: donald.DonaldGait = donald.DEFAULT_GAIT) -> donald.DonaldGait:
+    """The gait whose parameters are ``z`` (7,) times the default gait's."""
+    return dataclasses.replace(base, **{name: z[k] * getattr(base, name) for k, name in enumerate(PARAMETERS)})
+
+
+def _value_at(t: jax.Array, samples_t: jax.Array, values: jax.Array) -> jax.Array:
+    """Linear interpolation of ``values`` (S,) at time t (differentiable in t and values)."""
+    return jnp.interp(t, samples_t, values)
+
+
+def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive: donald.Drive,
+                          spec: donald.DonaldSpec = donald.DonaldSpec()):
+    """(minus the speed in m/s, no equalities, inequalities <= 0 in metres / seconds / rad)."""
+    gait = gait_from_vector(z)
+    run = walk(model, gait, gains, drive)
+    _, times = donald.keyframes(gait, STEPS)
+    t = run.t
+    com = run.com
+    # keyframes per step: shift, lift, swing, lower; the step k ends at times[1 + 4 (k + 1)]
+    step_end = lambda k: times[1 + 4 * (k + 1)]  # noqa: E731
+    speed = (_value_at(step_end(2), t, com[:, 0]) - _value_at(step_end(0), t, com[:, 0])) / (
+        step_end(2) - step_end(0))
+
+    half = np.asarray(spec.foot_size[:2]) / 2
+    rotation = run.foot_rotation.reshape(t.shape[0], 2, 3, 3)
+    stability, clearance = [], []
+    for k in range(STEPS):
+        support, swing = (0, 1) if k % 2 == 0 else (1, 0)
+        lifted, lowered = times[1 + 4 * k + 2], times[1 + 4 * k + 3]  # end of lift, end of swing
+        in_air = (t > lifted) & (t < lowered)
+        offset = jnp.einsum("sji,sj->si", rotation[:, support], com - run.foot_position[:, support])
+        margin = jnp.min(half[None] - jnp.abs(offset[:, :2]), axis=1)
+        stability.append(jnp.where(in_air, STABILITY_MARGIN - margin, -1.0))
+        sole_bottom = run.foot_position[:, swing, 2] - spec.foot_size[2] / 2
+        tilt = jnp.abs(rotation[:, swing, 2, 0]) * half[0] + jnp.abs(rotation[:, swing, 2, 1]) * half[1]
+        clearance.append(jnp.where(in_air, FOOT_CLEARANCE - (sole_bottom - tilt), -1.0))
+    values = dict(zip(PARAMETERS, z))
+    bounds = [MIN_DURATION / getattr(donald.DEFAULT_GAIT, name) - values[name] for name in PARAMETERS[3:]]
+    for name, (low, high) in ANGLE_BOUNDS.items():
+        default = getattr(donald.DEFAULT_GAIT, name)
+        bounds += [low / default - values[name], values[name] - high / default]
+    inequalities = jnp.concatenate([
+        jnp.concatenate(stability) / STABILITY_MARGIN, jnp.concatenate(clearance) / FOOT_CLEARANCE,
+        (PELVIS_HEIGHT - run.qpos[:, 2]) / 0.01, jnp.stack(bounds)])
+    return -speed / 0.01, jnp.zeros(0), inequalities
+
+
+def optimise(options: al.SolverOptions = al.SolverOptions(tolerance=1e-3, stationarity=1e-2, max_outer=8,
+                                                          max_inner=40),
+             progress=None) -> dict:
+    """Optimises the gait from the default; returns the default's and the optimum's speed, the
+    optimal parameters, the solver status and its largest violation."""
+    drive = donald.donald_drive()
+    mj_model, model = differentiable_donald(drive)
+    walk = donald.walker(mj_model, STEPS, DURATION)
+    gains = donald.DEFAULT_GAINS
+
+    def evaluate(z, _params):
+        return speed_and_constraints(z, walk, model, gains, drive)
+
+    problem = al.ConstrainedProblem(evaluate)
+    z0 = jnp.ones((1, len(PARAMETERS)))
+    result = al.solve(problem, z0, jnp.zeros(1), options, progress=progress)
+    start_speed = -float(jax.jit(evaluate)(z0[0], None)[0]) * 0.01
+    z = jnp.asarray(result.x[0])
+    return {"status": result.status[0], "speed_mps": -float(result.cost[0]) * 0.01,
+            "default_speed_mps": start_speed, "max_scaled_violation": float(result.violation[0]),
+            "gait": {name: float(getattr(gait_from_vector(z), name)) for name in PARAMETERS},
+            "gradients": int(result.gradients[0]), "wall_time_s": result.wall_time_s}
