@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Callable
@@ -84,21 +85,38 @@ def plot_torque_speed(run: donald.DonaldRun, drive: donald.Drive, path: Path) ->
     plt.close(figure)
 
 
-def run_donald(out: Path, steps: int = 8, progress: Callable[[str], None] | None = None) -> dict:
-    """Walks, then writes donald.json, donald_walk.png, donald_torque_speed.png and donald_replay.npz
+def run_donald(out: Path, steps: int = 8, progress: Callable[[str], None] | None = None,
+               gait: donald.DonaldGait = donald.DEFAULT_GAIT, name: str = "donald") -> dict:
+    """Walks, then writes {name}.json, {name}_walk.png, {name}_torque_speed.png and {name}_replay.npz
     (time and qpos, for ``biped-jax view donald --replay``)."""
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     say(f"compiling and simulating {steps} steps of DONALD in MJX")
-    run, drive = walk(steps)
+    run, drive = walk(steps, gait)
     report = donald.walk_report(run, drive, donald.DEFAULT_GAINS)
-    gait = donald.DEFAULT_GAIT
     report["gait"] = {name: float(getattr(gait, name)) for name in gait.__dataclass_fields__}
     report["steps_commanded"] = steps
     # walking speed over the stepping itself (not the initial settle and final stand)
     report["speed_mps"] = report["distance_m"] / (steps * float(gait.step_time))
-    (out / "donald.json").write_text(json.dumps(report, indent=2))
-    plot_walk(run, out / "donald_walk.png")
-    plot_torque_speed(run, drive, out / "donald_torque_speed.png")
-    np.savez_compressed(out / "donald_replay.npz", t=np.asarray(run.t), qpos=np.asarray(run.qpos))
+    (out / f"{name}.json").write_text(json.dumps(report, indent=2))
+    plot_walk(run, out / f"{name}_walk.png")
+    plot_torque_speed(run, drive, out / f"{name}_torque_speed.png")
+    np.savez_compressed(out / f"{name}_replay.npz", t=np.asarray(run.t), qpos=np.asarray(run.qpos))
+    return report
+
+
+def run_faster(out: Path, steps: int = 8, progress: Callable[[str], None] | None = None) -> dict:
+    """Optimises the gait for speed (``biped_jax.donald_speed``), then walks the optimum with MJX's full
+    contact solver as :func:`run_donald` does (files named donald_faster*), and writes the comparison
+    into donald_faster.json under "optimisation"."""
+    from biped_jax import donald_speed
+    say = progress or (lambda message: None)
+    say("optimising DONALD's gait for speed (single shooting through MJX contact, augmented Lagrangian)")
+    result = donald_speed.optimise(progress=lambda i, row: say(
+        f"outer iteration {i + 1}: speed {-0.01 * float(row['cost'][0]):.4f} m/s, scaled violation "
+        f"{float(row['violation'][0]):.1e}, gradients {int(row['gradients'][0])}"))
+    gait = dataclasses.replace(donald.DEFAULT_GAIT, **{k: jnp.asarray(v) for k, v in result["gait"].items()})
+    report = run_donald(out, steps, progress, gait, name="donald_faster")
+    report["optimisation"] = result
+    (out / "donald_faster.json").write_text(json.dumps(report, indent=2))
     return report

@@ -104,3 +104,27 @@ def test_unknown_drive_parts_are_named():
         donald.donald_drive(motor="RE99")
     with pytest.raises(ValueError, match="'GP32A-7'"):
         donald.donald_drive(gear="GP32A-7")
+
+
+def test_default_gait_is_feasible_for_the_speed_optimisation():
+    """The optimiser starts from a feasible point: the default gait keeps the stability margin, foot
+    clearance and pelvis height with the single-iteration (differentiable) contact solver, and the
+    objective is the speed over steps 2 and 3 recomputed here from the centre of mass."""
+    import jax
+
+    from biped_jax import donald_speed
+    drive = donald.donald_drive()
+    mj_model, model = donald_speed.differentiable_donald(drive)
+    assert mj_model.opt.iterations == 1
+    walk = donald.walker(mj_model, donald_speed.STEPS, donald_speed.DURATION)
+    z = jnp.ones(len(donald_speed.PARAMETERS))
+    objective, equalities, inequalities = jax.jit(lambda z_: donald_speed.speed_and_constraints(
+        z_, walk, model, donald.DEFAULT_GAINS, drive))(z)
+    assert equalities.size == 0 and float(jnp.max(inequalities)) < 0
+    run = walk(model, donald.DEFAULT_GAIT, donald.DEFAULT_GAINS, drive)
+    _, times = donald.keyframes(donald.DEFAULT_GAIT, donald_speed.STEPS)
+    t, com_x = np.asarray(run.t), np.asarray(run.com)[:, 0]
+    start, end = float(times[5]), float(times[13])  # ends of steps 1 and 3
+    speed = (np.interp(end, t, com_x) - np.interp(start, t, com_x)) / (end - start)
+    assert -0.01 * float(objective) == pytest.approx(speed, rel=1e-9)
+    assert speed > 0.01
