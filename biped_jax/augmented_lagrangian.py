@@ -97,7 +97,8 @@ class SolveResult:
       x: solution, (B, n). cost: f, (B,). equalities, inequalities: h and g at x (scaled), (B, m).
       violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf / max(1, |f|), (B,).
       status: list of B strings. outer_iterations, gradients: counts, (B,). wall_time_s: float.
-      history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients.
+      history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients,
+        stationarity, and the iterate x (B, n) (lets a caller checkpoint a long solve).
     """
 
     x: np.ndarray
@@ -297,7 +298,7 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
                                    inner_tolerance)
         finite = np.asarray(jnp.all(jnp.isfinite(x), axis=-1)) & np.isfinite(np.asarray(f))
         row = {"cost": np.asarray(f), "violation": violation, "penalty": np.asarray(rho),
-               "gradients": gradients.copy(), "stationarity": stationarity.copy()}
+               "gradients": gradients.copy(), "stationarity": stationarity.copy(), "x": np.asarray(x)}
         history.append(row)
         if progress:
             progress(outer, row)

@@ -120,5 +120,5 @@ class GaitSolver:
                 max_violation=max(violations.values()), stationarity=float(result.stationarity[b]),
                 outer_iterations=int(result.outer_iterations[b]), gradients=int(result.gradients[b]),
                 wall_time_s=result.wall_time_s, x=np.asarray(result.x[b]), trajectory=trajectory,
-                history=[{k: float(v[b]) for k, v in row.items()} for row in result.history]))
+                history=[{k: float(v[b]) for k, v in row.items() if k != "x"} for row in result.history]))
         return solutions
