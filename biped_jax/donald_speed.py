@@ -63,7 +63,9 @@ def _value_at(t: jax.Array, samples_t: jax.Array, values: jax.Array) -> jax.Arra
 
 def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive: donald.Drive,
                           spec: donald.DonaldSpec = donald.DonaldSpec()):
-    """(minus the speed in m/s, no equalities, inequalities <= 0 in metres / seconds / rad)."""
+    """(minus the speed in units of 0.01 m/s, no equalities, inequalities <= 0), each inequality group
+    divided by its scale (margin 10 mm, contact height 2 mm, clearance 3 mm, pelvis 10 mm; bounds as
+    fractions of the default gait's values) so that all are of order one."""
     gait = gait_from_vector(z)
     run = walk(model, gait, gains, drive)
     _, times = donald.keyframes(gait, STEPS)
