@@ -286,12 +286,13 @@ def walker(mj_model: mujoco.MjModel, steps: int, duration: float, record_every: 
 CONTACT_HEIGHT = 2e-3
 
 
-def sole_corners(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> np.ndarray:
-    """World positions of the four bottom corners of each foot plate, shape (S, 2, 4, 3), m."""
+def sole_corners(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> jax.Array:
+    """World positions of the four bottom corners of each foot plate, shape (S, 2, 4, 3), m
+    (traceable: the speed optimisation differentiates through it)."""
     hx, hy, hz = np.asarray(spec.foot_size) / 2
     local = np.array([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
-    rotation = np.asarray(run.foot_rotation).reshape(*np.shape(run.foot_rotation)[:2], 3, 3)
-    return np.asarray(run.foot_position)[:, :, None, :] + np.einsum("sfij,cj->sfci", rotation, local)
+    rotation = jnp.reshape(run.foot_rotation, (*jnp.shape(run.foot_rotation)[:2], 3, 3))
+    return jnp.asarray(run.foot_position)[:, :, None, :] + jnp.einsum("sfij,cj->sfci", rotation, local)
 
 
 def _margin(point: np.ndarray, corners: np.ndarray) -> float:
@@ -313,7 +314,7 @@ def _margin(point: np.ndarray, corners: np.ndarray) -> float:
 def support_phases(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> tuple[np.ndarray, np.ndarray]:
     """Per sample: which feet touch the ground, (S, 2) bool, and the centre of mass's margin inside
     the support polygon in single support (NaN in double support or flight), (S,), m."""
-    corners = sole_corners(run, spec)
+    corners = np.asarray(sole_corners(run, spec))
     touching_corner = corners[..., 2] < CONTACT_HEIGHT
     touching = touching_corner.any(axis=2)
     com = np.asarray(run.com)[:, :2]

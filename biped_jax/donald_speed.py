@@ -78,8 +78,7 @@ def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive:
 
     half = np.asarray(spec.foot_size) / 2
     rotation = run.foot_rotation.reshape(t.shape[0], 2, 3, 3)
-    local = np.array([[sx * half[0], sy * half[1], -half[2]] for sx in (-1, 1) for sy in (-1, 1)])
-    corner_height = run.foot_position[:, :, None, 2] + jnp.einsum("sfj,cj->sfc", rotation[:, :, 2], local)
+    corner_height = donald.sole_corners(run, spec)[..., 2]
     # Measured phases, as donald.support_phases: a foot with every sole corner above the contact
     # height is in the air (the mask selects constraints; gradients flow through the values).
     airborne = jax.lax.stop_gradient(jnp.all(corner_height > donald.CONTACT_HEIGHT, axis=2))

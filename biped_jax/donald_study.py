@@ -45,7 +45,7 @@ def plot_walk(run: donald.DonaldRun, path: Path) -> None:
     axes[1].fill_between(t, -0.12, 0.12, where=single, color="0.9", label="single support")
     axes[0].legend(loc="upper left")
     axes[1].set_xlabel("time [s]")
-    corners = donald.sole_corners(run)
+    corners = np.asarray(donald.sole_corners(run))
     for s in np.flatnonzero(single)[::10]:
         foot = int(np.argmax(touching[s]))
         outline = corners[s, foot, [0, 1, 3, 2, 0], :2]
