@@ -8,6 +8,7 @@ program per batch size), prints a table and saves JSON.
 """
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -65,9 +66,8 @@ def main():
         else:
             function = jax.vmap(gradient)
             scales = jnp.linspace(0.8, 1.2, batch)
-            designs = hs.Design(link_mass=scales[:, None] * design.link_mass,  # lighter to heavier
-                                joint_armature=jnp.tile(design.joint_armature, (batch, 1)),
-                                joint_damping=jnp.tile(design.joint_damping, (batch, 1)))
+            designs = jax.tree.map(lambda a: jnp.tile(a, (batch, 1)), design)
+            designs = dataclasses.replace(designs, link_mass=scales[:, None] * design.link_mass)  # light to heavy
             call_args = (designs, jnp.tile(q0, (batch, 1)), jnp.tile(qd0, (batch, 1)),
                          jnp.tile(controls, (batch, 1, 1)))
         compile_s, run_s = measure(function, call_args, args.repeats)

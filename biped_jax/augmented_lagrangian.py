@@ -97,6 +97,9 @@ class SolveResult:
       x: solution, (B, n). cost: f, (B,). equalities, inequalities: h and g at x (scaled), (B, m).
       violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf / max(1, |f|), (B,).
       status: list of B strings. outer_iterations, gradients: counts, (B,). wall_time_s: float.
+      multipliers_eq, multipliers_in: the final multiplier estimates of h and g, (B, m) each (the
+        first-order estimates lam + rho c(x) of the last update: at a KKT point, the sensitivity of the
+        optimal f to the problem data, see :func:`optimal_value_gradient`).
       history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients,
         stationarity, and the iterate x (B, n) (lets a caller checkpoint a long solve).
     """
@@ -112,6 +115,8 @@ class SolveResult:
     gradients: np.ndarray
     wall_time_s: float
     history: list
+    multipliers_eq: np.ndarray
+    multipliers_in: np.ndarray
 
 
 def _violation(h, g):
@@ -324,4 +329,25 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     return SolveResult(x=np.asarray(x), cost=np.asarray(f), equalities=np.asarray(h),
                        inequalities=np.asarray(g), violation=np.asarray(_violation(h, g)),
                        stationarity=stationarity, status=status, outer_iterations=outer_iterations,
-                       gradients=gradients, wall_time_s=time.perf_counter() - started, history=history)
+                       gradients=gradients, wall_time_s=time.perf_counter() - started, history=history,
+                       multipliers_eq=np.asarray(lam_eq), multipliers_in=np.asarray(lam_in))
+
+
+def optimal_value_gradient(problem: ConstrainedProblem, parameters_to_params: Callable) -> Callable:
+    """Gradient of the optimal value f*(p) with respect to problem parameters, by the envelope theorem.
+
+    At a KKT point x*(p) with multipliers (lam_eq, lam_in), strict complementarity and linearly
+    independent active constraints, d f*/d theta = d/d theta [f + lam_eq . h + lam_in . g] at fixed
+    x* and multipliers (Fiacco, Introduction to Sensitivity and Stability Analysis in Nonlinear
+    Programming, 1983, Thm. 3.4.1; Nocedal & Wright Sec. 12.8 for the multipliers as sensitivities).
+    One gradient of the Lagrangian: no differentiation through the solver's iterations.
+
+    Args:
+      problem: as solved.
+      parameters_to_params: theta -> the solver's per-problem ``params`` (traceable).
+    Returns a jitted, vmapped ``(theta, x, lam_eq, lam_in) -> d f*/d theta`` (same pytree as theta).
+    """
+    def lagrangian(theta, x, lam_eq, lam_in):
+        f, h, g = problem.evaluate(x, parameters_to_params(theta))
+        return f + lam_eq @ h + lam_in @ g
+    return jax.jit(jax.vmap(jax.grad(lagrangian)))

@@ -18,6 +18,9 @@ import numpy as np
 PLANAR_LINKS = ("torso", "thigh1", "shank1", "thigh2", "shank2")
 #: Actuated joints of the sagittal biped, in the order of u = (H1, K1, H2, K2).
 PLANAR_ACTUATED = ("hip1", "knee1", "hip2", "knee2")
+#: The link that carries each joint's drive (motor + gear), at the joint: both hip drives sit in the
+#: torso, each knee drive at the knee end of its thigh.
+PLANAR_DRIVE_MOUNTS = ("torso", "thigh1", "torso", "thigh2")
 
 
 @jax.tree_util.register_dataclass
@@ -30,11 +33,19 @@ class Design:
         scales with mass (uniform density), the centre of mass stays.
       joint_armature: reflected rotor inertia at each actuated joint, shape (n_joints,), kg m^2.
       joint_damping: viscous damping at each actuated joint, shape (n_joints,), N m s/rad.
+      drive_mass: mass of each joint's drive (motor + gear), shape (n_joints,), kg: a point mass at the
+        joint, carried by the link the layout mounts it on (0 in the MJCF files).
     """
 
     link_mass: jax.Array
     joint_armature: jax.Array
     joint_damping: jax.Array
+    drive_mass: jax.Array
+
+    @property
+    def total_mass(self) -> jax.Array:
+        """Links plus drives, kg (shape: the batch shape)."""
+        return jnp.sum(self.link_mass, axis=-1) + jnp.sum(self.drive_mass, axis=-1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,23 +56,34 @@ class DesignLayout:
       body_ids: body index of each design link, shape (n_links,).
       dof_ids: dof index of each actuated joint, shape (n_joints,).
       subtree: subtree[i, j] = 1 when body j lies in the subtree of body i, shape (nbody, nbody).
+      drive_links: drive_links[i, k] = 1 when joint k's drive is mounted on design link i,
+        shape (n_links, n_joints).
+      drive_positions: each drive's position (its joint's anchor) in the frame of the body carrying
+        it, shape (n_joints, 3), m.
     """
 
     body_ids: np.ndarray
     dof_ids: np.ndarray
     subtree: np.ndarray
+    drive_links: np.ndarray
+    drive_positions: np.ndarray
+
+    def _arrays(self):
+        return (self.body_ids, self.dof_ids, self.subtree, self.drive_links, self.drive_positions)
 
     def __hash__(self):  # layouts are small; hashing by content lets them be static jit arguments
-        return hash((self.body_ids.tobytes(), self.dof_ids.tobytes(), self.subtree.tobytes()))
+        return hash(tuple(a.tobytes() for a in self._arrays()))
 
     def __eq__(self, other):
-        return (isinstance(other, DesignLayout) and np.array_equal(self.body_ids, other.body_ids)
-                and np.array_equal(self.dof_ids, other.dof_ids)
-                and np.array_equal(self.subtree, other.subtree))
+        return isinstance(other, DesignLayout) and all(
+            np.array_equal(a, b) for a, b in zip(self._arrays(), other._arrays()))
 
 
-def design_layout(mj_model: mujoco.MjModel, links=PLANAR_LINKS, joints=PLANAR_ACTUATED) -> DesignLayout:
-    """Builds the layout of ``links`` (body names) and ``joints`` (joint names) in ``mj_model``."""
+def design_layout(mj_model: mujoco.MjModel, links=PLANAR_LINKS, joints=PLANAR_ACTUATED,
+                  drive_mounts=PLANAR_DRIVE_MOUNTS) -> DesignLayout:
+    """Builds the layout of ``links`` (body names), ``joints`` (joint names) and the links carrying
+    their drives (``drive_mounts``, one of ``links`` per joint) in ``mj_model``. The design links'
+    inertias must be diagonal in the body frame (MJCF ``diaginertia``), as in every shipped model."""
     def index(kind, names):
         ids = []
         for name in names:
@@ -82,7 +104,26 @@ def design_layout(mj_model: mujoco.MjModel, links=PLANAR_LINKS, joints=PLANAR_AC
             if i == 0:
                 break
             i = mj_model.body_parentid[i]
-    return DesignLayout(body_ids, mj_model.jnt_dofadr[joint_ids].astype(np.int32), subtree)
+    unknown = [name for name in drive_mounts if name not in links]
+    if len(drive_mounts) != len(joints) or unknown:
+        raise ValueError(f"drive_mounts must name one of the design links {links} per joint {joints}, "
+                         f"got {drive_mounts}")
+    tilted = [name for name, i in zip(links, body_ids)
+              if not np.allclose(mj_model.body_iquat[i], [1, 0, 0, 0])]
+    if tilted:
+        raise ValueError(f"design links {tilted} have inertia axes rotated from their body frame")
+    data = mujoco.MjData(mj_model)
+    mujoco.mj_kinematics(mj_model, data)
+    drive_links = np.zeros((len(links), len(joints)))
+    positions = np.zeros((len(joints), 3))
+    for k, (joint, mount) in enumerate(zip(joint_ids, drive_mounts)):
+        link = links.index(mount)
+        drive_links[link, k] = 1.0
+        body = body_ids[link]
+        rotation = data.xmat[body].reshape(3, 3)
+        positions[k] = rotation.T @ (data.xanchor[joint] - data.xpos[body])
+    return DesignLayout(body_ids, mj_model.jnt_dofadr[joint_ids].astype(np.int32), subtree,
+                        drive_links, positions)
 
 
 def nominal_design(mj_model: mujoco.MjModel, layout: DesignLayout) -> Design:
@@ -91,6 +132,7 @@ def nominal_design(mj_model: mujoco.MjModel, layout: DesignLayout) -> Design:
         link_mass=jnp.asarray(mj_model.body_mass[layout.body_ids]),
         joint_armature=jnp.asarray(mj_model.dof_armature[layout.dof_ids]),
         joint_damping=jnp.asarray(mj_model.dof_damping[layout.dof_ids]),
+        drive_mass=jnp.zeros(len(layout.dof_ids)),
     )
 
 
@@ -98,7 +140,7 @@ def check_design(design: Design, layout: DesignLayout) -> Design:
     """Raises ValueError naming the offending value if ``design`` has a wrong shape, a non-positive
     mass, or a negative armature or damping. Call it outside ``jit`` (it reads concrete values)."""
     expected = {"link_mass": layout.body_ids.shape, "joint_armature": layout.dof_ids.shape,
-                "joint_damping": layout.dof_ids.shape}
+                "joint_damping": layout.dof_ids.shape, "drive_mass": layout.dof_ids.shape}
     for field, shape in expected.items():
         value = np.asarray(getattr(design, field))
         if value.shape != shape:
@@ -108,7 +150,7 @@ def check_design(design: Design, layout: DesignLayout) -> Design:
     mass = np.asarray(design.link_mass)
     if np.any(mass <= 0):
         raise ValueError(f"Design.link_mass must be positive, got {mass.tolist()} (kg)")
-    for field in ("joint_armature", "joint_damping"):
+    for field in ("joint_armature", "joint_damping", "drive_mass"):
         value = np.asarray(getattr(design, field))
         if np.any(value < 0):
             raise ValueError(f"Design.{field} must be non-negative, got {value.tolist()}")
@@ -138,13 +180,36 @@ def set_link_inertia(model, layout: DesignLayout, mass: jax.Array, com: jax.Arra
     )
 
 
+def _point_inertia(mass, offset):
+    """Diagonal of the inertia of point masses about a point they are offset from: mass (...,),
+    offset (..., 3) -> (..., 3), kg m^2 (products of inertia are zero for the shipped links, whose
+    drives lie on the principal axis through the centre of mass)."""
+    squared = offset**2
+    return mass[..., None] * (jnp.sum(squared, axis=-1, keepdims=True) - squared)
+
+
+def with_drive_masses(layout: DesignLayout, mass, com, inertia, drive_mass):
+    """Each link's mass, centre of mass and inertia with the point masses of the drives it carries.
+
+    mass (n_links,), com and inertia (n_links, 3), drive_mass (n_joints,) -> the same three, SI."""
+    carried = jnp.asarray(layout.drive_links) * drive_mass[None, :]  # (n_links, n_joints)
+    positions = jnp.asarray(layout.drive_positions)
+    total = mass + jnp.sum(carried, axis=1)
+    new_com = (mass[:, None] * com + carried @ positions) / total[:, None]
+    inertia = (inertia + _point_inertia(mass, com - new_com)
+               + jnp.sum(_point_inertia(carried, positions[None] - new_com[:, None]), axis=1))
+    return total, new_com, inertia
+
+
 def apply_design(model, layout: DesignLayout, design: Design):
     """Returns ``model`` (an ``mjx.Model``) carrying ``design``; traceable, so one compiled program
-    serves every design under ``vmap``. Inertias scale with mass (each link keeps its shape)."""
+    serves every design under ``vmap``. Inertias scale with mass (each link keeps its shape), then the
+    drives are added as point masses at their joints."""
     ids = layout.body_ids
     scale = design.link_mass / model.body_mass[ids]
-    model = set_link_inertia(model, layout, design.link_mass, model.body_ipos[ids],
-                             model.body_inertia[ids] * scale[:, None])
+    model = set_link_inertia(model, layout, *with_drive_masses(
+        layout, design.link_mass, model.body_ipos[ids], model.body_inertia[ids] * scale[:, None],
+        design.drive_mass))
     return model.replace(
         dof_armature=model.dof_armature.at[layout.dof_ids].set(design.joint_armature),
         dof_damping=model.dof_damping.at[layout.dof_ids].set(design.joint_damping),

@@ -187,3 +187,65 @@ def voltage_margin(torque_at_motor, speed_at_motor, motor: Motor, supply_voltage
     """
     needed = jnp.abs(voltage(torque_at_motor, speed_at_motor, motor))
     return supply_voltage - needed
+
+
+# ----------------------------------------------------------------------------- drives in the gait problem
+
+#: Supply voltage standing for "no voltage limit" (the paper's gait problem), V.
+NO_VOLTAGE_LIMIT = 1e6
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class JointDrives:
+    """The drive of each actuated joint as arrays (traced, batchable), SI units.
+
+    Attributes:
+      ratio: gear ratio N, shape (n_joints,). efficiency: gear efficiency eta, shape (n_joints,).
+      torque_constant: k_t, N m/A, shape (n_joints,). resistance: R, ohm, shape (n_joints,).
+      supply_voltage: V_s, V, shape ().
+    """
+
+    ratio: jax.Array
+    efficiency: jax.Array
+    torque_constant: jax.Array
+    resistance: jax.Array
+    supply_voltage: jax.Array
+
+
+def ideal_drives(joints: int = 4) -> JointDrives:
+    """Identical unit drives (N = eta = k_t = R = 1) without a voltage limit: their Joule energy is
+    the paper's integral of u^T u, so the paper's gait problem is this special case."""
+    ones = jnp.ones(joints)
+    return JointDrives(ratio=ones, efficiency=ones, torque_constant=ones, resistance=ones,
+                       supply_voltage=jnp.asarray(NO_VOLTAGE_LIMIT))
+
+
+#: Joint power over which the gear's efficiency switches smoothly from back-driven to motoring, W.
+EFFICIENCY_SWITCH_POWER = 1.0
+
+
+def smooth_motor_torque(joint_torque: jax.Array, joint_speed: jax.Array, ratio, efficiency,
+                        switch_power: float = EFFICIENCY_SWITCH_POWER) -> jax.Array:
+    """:func:`motor_torque` with the switch between T / (N eta) (motoring) and T eta / N (back-driven)
+    blended over joint powers |T omega| of about ``switch_power`` (W): the exact switch puts a kink
+    into the Joule energy at every sample where T omega changes sign, which stalls the gait solver's
+    line searches. Equal to :func:`motor_torque` for eta = 1 and for |T omega| >> switch_power."""
+    motoring = 0.5 * (1 + jnp.tanh(joint_torque * joint_speed / switch_power))
+    return joint_torque / ratio * (motoring / efficiency + (1 - motoring) * efficiency)
+
+
+def joule_residuals(joint_torque: jax.Array, joint_speed: jax.Array, drives: JointDrives, dt) -> jax.Array:
+    """r with r . r = integral of R i^2 dt (Joule energy, J): sqrt(R dt) T_m / k_t, shape of the torques
+    (T, n_joints); joint_torque in N m, joint_speed in rad/s, dt in s; T_m from
+    :func:`smooth_motor_torque`."""
+    torque_at_motor = smooth_motor_torque(joint_torque, joint_speed, drives.ratio, drives.efficiency)
+    return jnp.sqrt(drives.resistance * dt) * torque_at_motor / drives.torque_constant
+
+
+def voltage_excess(joint_torque: jax.Array, joint_speed: jax.Array, drives: JointDrives) -> jax.Array:
+    """|V| - V_s per sample and joint, V (<= 0: the operating point lies under the speed-torque line
+    at the supply voltage); shapes as :func:`joule_residuals`."""
+    torque_at_motor = smooth_motor_torque(joint_torque, joint_speed, drives.ratio, drives.efficiency)
+    needed = voltage(torque_at_motor, motor_speed(joint_speed, drives.ratio), drives)
+    return jnp.abs(needed) - drives.supply_voltage

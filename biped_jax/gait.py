@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax import drives as drive_model
 from biped_jax import hybrid_step as hs
 from biped_jax.design import Design
 from biped_jax.robot_specs import PLANAR_SPECS
@@ -42,6 +43,7 @@ FORCE_SCALE = 10.0  # N
 IMPULSE_SCALE = 1.0  # N s
 POWER_SCALE = 10.0  # W
 TORQUE_SCALE = 10.0  # N m
+VOLTAGE_SCALE = 10.0  # V
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,27 +79,35 @@ class GaitModel:
       speed: average forward speed v, m/s.
       step_length: L, m.
       power_limit: M_W, W.
+      drives: the joints' drives. The objective is their Joule energy, the integral of R i^2 (J); with
+        :func:`~biped_jax.drives.ideal_drives` (the default) that is the paper's J = integral of
+        u^T u (N^2 m^2 s) and the voltage constraint is inactive.
     """
 
     design: Design
     speed: jax.Array
     step_length: jax.Array
     power_limit: jax.Array
+    drives: drive_model.JointDrives
 
 
-def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
+def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2,
+               design: Design | None = None, drives: drive_model.JointDrives | None = None) -> GaitModel:
     """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly"); raises
-    ValueError naming a non-positive speed, limit or length, or a step beyond the legs' reach."""
+    ValueError naming a non-positive speed, limit or length, or a step beyond the legs' reach.
+    ``design`` (default: the mass class's MJCF file) and ``drives`` (default: ideal, the paper's
+    problem) replace the robot's hardware."""
     for name, value in (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive, got {value!r}")
-    design = hs.planar_design(mass_class)
+    design = hs.planar_design(mass_class) if design is None else design
     reach = 2 * PLANAR_SPECS[mass_class].leg_length
     if step_length >= reach:
         raise ValueError(f"step_length {step_length} m is beyond the legs' reach (< {reach:.3g} m)")
     return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),
-                     power_limit=jnp.asarray(float(power_limit)))
+                     power_limit=jnp.asarray(float(power_limit)),
+                     drives=drive_model.ideal_drives() if drives is None else drives)
 
 
 @jax.tree_util.register_dataclass
@@ -236,6 +246,7 @@ CONSTRAINT_GROUPS = {
     "power_limit": ("inequality", "W"),
     "impact_impulse": ("inequality", "N s"),
     "liftoff": ("inequality", "m/s"),
+    "voltage": ("inequality", "V"),
 }
 
 
@@ -260,11 +271,12 @@ def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: Ga
         "power_limit": (jnp.abs(power) - model.power_limit).ravel(),
         "impact_impulse": jnp.array([-lz, lx - settings.friction * lz, -lx - settings.friction * lz]),
         "liftoff": -impact.old_stance_foot_velocity[1:],
+        "voltage": drive_model.voltage_excess(tr.u, tr.joint_speed, model.drives).ravel(),
     }
 
 
 _SCALES = {"m": LENGTH_SCALE, "rad": 1.0, "rad/s": RATE_SCALE, "m/s": LENGTH_SCALE, "N": FORCE_SCALE,
-           "N m": TORQUE_SCALE, "W": POWER_SCALE, "N s": IMPULSE_SCALE}
+           "N m": TORQUE_SCALE, "W": POWER_SCALE, "N s": IMPULSE_SCALE, "V": VOLTAGE_SCALE}
 
 
 def scaled_constraints(groups: dict) -> tuple[jax.Array, jax.Array]:
@@ -282,10 +294,17 @@ def cost(trajectory: GaitTrajectory) -> jax.Array:
     return dt * jnp.sum(trajectory.u**2)
 
 
-def cost_residuals(trajectory: GaitTrajectory) -> jax.Array:
-    """r with r . r = J: sqrt(dt) u, flattened, shape (4 T,)."""
+def cost_residuals(trajectory: GaitTrajectory, drives: drive_model.JointDrives) -> jax.Array:
+    """r with r . r = the objective, the drives' Joule energy (J = integral of u^T u for ideal
+    drives), flattened, shape (4 T,)."""
     dt = trajectory.t[1] - trajectory.t[0]
-    return jnp.sqrt(dt) * trajectory.u.ravel()
+    return drive_model.joule_residuals(trajectory.u, trajectory.joint_speed, drives, dt).ravel()
+
+
+def joule_energy(trajectory: GaitTrajectory, drives: drive_model.JointDrives) -> jax.Array:
+    """Integral of R i^2 over the step summed over the joints, J (= J for ideal drives)."""
+    residuals = cost_residuals(trajectory, drives)
+    return residuals @ residuals
 
 
 def violations(groups: dict) -> dict:

@@ -41,6 +41,8 @@ class GaitSolution:
       stationarity: |grad of the Lagrangian|_inf (scaled). outer_iterations, gradients: counts.
       wall_time_s: the batch's solve time. x: the decision vector. trajectory: the simulated step.
       history: per outer iteration: cost, scaled violation, penalty, gradients.
+      multipliers_eq, multipliers_in: the solver's final multiplier estimates of the scaled
+        constraints (see :func:`biped_jax.augmented_lagrangian.optimal_value_gradient`).
     """
 
     name: str
@@ -60,6 +62,8 @@ class GaitSolution:
     x: np.ndarray
     trajectory: gait.GaitTrajectory
     history: list
+    multipliers_eq: np.ndarray
+    multipliers_in: np.ndarray
 
 
 class GaitSolver:
@@ -75,7 +79,7 @@ class GaitSolver:
             trajectory = gait.simulate(x, model, biped, settings_)
             equalities, inequalities = gait.scaled_constraints(
                 gait.constraint_groups(trajectory, model, settings_))
-            return gait.cost_residuals(trajectory), equalities, inequalities
+            return gait.cost_residuals(trajectory, model.drives), equalities, inequalities
 
         self.problem = al.ConstrainedProblem.from_residuals(residuals)
         self.compiled = al.compile_problem(self.problem)
@@ -97,7 +101,9 @@ class GaitSolver:
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
         """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts."""
-        batch = jax.tree.map(lambda *leaves: jnp.stack(leaves), *models)
+        # strong float64 leaves: a weakly typed leaf (from a Python float) would compile a second program
+        batch = jax.tree.map(lambda *leaves: jnp.asarray(jnp.stack(leaves), dtype=jnp.result_type(float)),
+                             *models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
         result = al.solve(self.problem, x0, batch, self.options, compiled=self.compiled,
                           progress=progress)
@@ -113,12 +119,13 @@ class GaitSolver:
             elif status == al.CONVERGED and max(violations.values()) > VIOLATION_TOLERANCE:
                 status = al.ITERATION_LIMIT  # feasible only in the scaled sense: keep iterating
             solutions.append(GaitSolution(
-                name=name, mass_kg=float(jnp.sum(model.design.link_mass)), speed_mps=float(model.speed),
+                name=name, mass_kg=float(model.design.total_mass), speed_mps=float(model.speed),
                 power_limit_W=float(model.power_limit), step_length_m=float(model.step_length),
                 step_time_s=float(model.step_length / model.speed), status=status,
                 cost=float(result.cost[b]), violations=violations,
                 max_violation=max(violations.values()), stationarity=float(result.stationarity[b]),
                 outer_iterations=int(result.outer_iterations[b]), gradients=int(result.gradients[b]),
                 wall_time_s=result.wall_time_s, x=np.asarray(result.x[b]), trajectory=trajectory,
-                history=[{k: float(v[b]) for k, v in row.items() if k != "x"} for row in result.history]))
+                history=[{k: float(v[b]) for k, v in row.items() if k != "x"} for row in result.history],
+                multipliers_eq=result.multipliers_eq[b], multipliers_in=result.multipliers_in[b]))
         return solutions

@@ -31,3 +31,18 @@ def rollout():
     """One jitted single-support rollout shared by every test (compiled once per horizon)."""
     from biped_jax import hybrid_step
     return jax.jit(hybrid_step.stance_rollout)
+
+
+@pytest.fixture(scope="session")
+def short_solver():
+    """The gait solver at the tests' short horizon (20 Euler steps, Bezier degree 5): the same code as
+    the study; every test that solves gaits shares its compiled programs."""
+    from biped_jax import gait, gait_solver
+    return gait_solver.GaitSolver(gait.GaitSettings(steps=20, degree=5))
+
+
+@pytest.fixture(scope="session")
+def paper_solutions(short_solver):
+    """M1-M4 in one batch (the same compiled program as `biped-jax reproduce --steps 20 --degree 5`)."""
+    from biped_jax import study
+    return short_solver.solve([r.name for r in study.PAPER_MODELS], study._models(study.PAPER_MODELS))

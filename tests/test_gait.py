@@ -16,15 +16,9 @@ SETTINGS = gait.GaitSettings(steps=20, degree=5)
 
 
 @pytest.fixture(scope="module")
-def solver():
-    return gait_solver.GaitSolver(SETTINGS)
-
-
-@pytest.fixture(scope="module")
-def paper_solutions(solver):
-    """M1-M4 in one batch (the same compiled program as `biped-jax reproduce --steps 20 --degree 5`)."""
-    from biped_jax import study
-    return solver.solve([r.name for r in study.PAPER_MODELS], study._models(study.PAPER_MODELS))
+def solver(short_solver):
+    assert short_solver.settings == SETTINGS
+    return short_solver
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,123 @@
+"""Co-design: the motor in the loop (armature, drive masses, Joule energy, voltage limit), batches of
+designs, and the gradient of the optimal Joule energy against re-solved optima."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax import augmented_lagrangian as al
+from biped_jax import codesign, drives, gait
+from biped_jax import hybrid_step as hs
+from biped_jax.drives import GCM2
+
+SPEED, POWER_LIMIT = 0.555, 20.0  # M2
+LOG_STEP = 0.03  # central difference in log N
+
+
+def test_armature_is_ratio_squared_times_rotor_and_gear_inertia(biped12):
+    """RE 25 42 V (10.7 g cm^2) through the GP 32 A 66.22:1 (0.7 g cm^2, motor side): the MJX models'
+    dof_armature at the four actuated joints, pinned and floating."""
+    design = codesign.catalogue_design("RE25-42V", "GP32A-66.22")
+    expected = 66.22**2 * (10.7 + 0.7) * GCM2
+    biped = hs.with_design(biped12, codesign.robot_design(design))
+    for model, layout in zip((biped.pinned, biped.floating), hs.planar_layouts()):
+        np.testing.assert_allclose(np.asarray(model.dof_armature)[layout.dof_ids], expected, rtol=1e-12)
+    assert float(design.total_mass) == pytest.approx(12.0, abs=0.01)  # the structure is built for it
+
+
+def test_mixed_gearheads_and_total_mass():
+    design = codesign.catalogue_design("RE25-118752", ("GP32A-23", "GP32A-66.22", "GP32A-23", "GP32A-66.22"),
+                                       total_mass=16.0)
+    np.testing.assert_allclose(design.ratio, [23, 66.22, 23, 66.22])
+    np.testing.assert_allclose(design.gear_mass, [0.16, 0.19, 0.16, 0.19])
+    assert float(design.total_mass) == pytest.approx(16.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: codesign.catalogue_design("RE25-99V"), "unknown motor part 'RE25-99V'"),
+    (lambda: codesign.catalogue_design(gearhead="GP32A-7"), "unknown gearhead part 'GP32A-7'"),
+    (lambda: codesign.catalogue_design(total_mass=1.0), "total_mass must exceed the drives' 1.28 kg, got 1.0"),
+    (lambda: codesign.catalogue_design(supply_voltage=-5.0), "supply_voltage must be positive, got -5.0"),
+    (lambda: codesign.nearest_gearhead(-3.0), "gear ratio must be positive and finite, got -3.0"),
+])
+def test_bad_designs_are_rejected_naming_the_value(call, message):
+    with pytest.raises(ValueError, match=message):
+        call()
+
+
+def test_smooth_gear_efficiency_is_exact_away_from_the_switch():
+    torque = jnp.array([2.0, -2.0, 2.0, -2.0, 0.3])
+    speed = jnp.array([5.0, -5.0, -5.0, 5.0, 0.2])  # powers 10, 10, -10, -10, 0.06 W
+    exact = drives.motor_torque(torque, speed, 66.0, 0.7)
+    smooth = drives.smooth_motor_torque(torque, speed, 66.0, 0.7)
+    np.testing.assert_allclose(smooth[:4], exact[:4], rtol=1e-8)
+    assert exact[4] * 0.7**2 < smooth[4] < exact[4]  # blended between the two laws near zero power
+    np.testing.assert_allclose(drives.smooth_motor_torque(torque, speed, 66.0, 1.0), torque / 66.0, rtol=1e-15)
+
+
+def test_joule_energy_of_identical_drives_is_a_constant_times_int_u2(paper_solutions):
+    """The paper's objective is the special case: ideal drives give exactly J = int u^T u, identical
+    lossless-gear drives R / (k_t N)^2 times it."""
+    trajectory = paper_solutions[1].trajectory
+    int_u2 = float(gait.cost(trajectory))
+    assert float(gait.joule_energy(trajectory, drives.ideal_drives())) == pytest.approx(int_u2, rel=1e-12)
+    design = dataclasses.replace(codesign.catalogue_design(), gear_efficiency=jnp.ones(4))
+    joule = float(gait.joule_energy(trajectory, codesign.joint_drives(design)))
+    assert joule == pytest.approx(7.05 / (0.0409 * 66.22) ** 2 * int_u2, rel=1e-12)
+
+
+def test_voltage_limit_is_the_speed_torque_line():
+    """An operating point on the line at the supply voltage has zero excess; faster is positive."""
+    design = codesign.catalogue_design()
+    line = codesign.joint_drives(design)
+    torque_motor = 0.05  # N m at the motor, motoring
+    motor_speed = float(drives.max_speed_at_torque(torque_motor, drives.load_catalogue().motor("RE25-42V"), 38.0))
+    joint_torque = torque_motor * 66.22 * 0.7
+    joint_speed = motor_speed / 66.22
+    # far from the efficiency switch (|T omega| >> 1 W), so the smooth law is the exact one
+    excess = drives.voltage_excess(jnp.full(4, joint_torque), jnp.full(4, joint_speed), line)
+    np.testing.assert_allclose(excess, 0.0, atol=1e-9)
+    faster = drives.voltage_excess(jnp.full(4, joint_torque), jnp.full(4, 1.01 * joint_speed), line)
+    np.testing.assert_allclose(faster, 0.0409 * 0.01 * motor_speed, rtol=1e-9)  # back-EMF of the extra 1 %
+
+
+@pytest.fixture(scope="module")
+def ratio_batch(short_solver, paper_solutions):
+    """The reference drive at log N - d, log N, log N + d, log N, warm-started from M2's ideal gait
+    (batch of four: the programs the paper fixture compiled)."""
+    reference = codesign.catalogue_design()
+    log_ratio = np.log(66.22) + np.array([-LOG_STEP, 0.0, LOG_STEP, 0.0])
+    designs = [codesign.with_ratio(reference, jnp.full(4, t)) for t in log_ratio]
+    x0 = np.tile(paper_solutions[1].x, (4, 1))
+    return designs, log_ratio, codesign.solve_designs(short_solver, designs, SPEED, POWER_LIMIT, x0=x0)
+
+
+def test_a_batch_of_designs_converges_and_identical_designs_agree(short_solver, ratio_batch, paper_solutions):
+    designs, _, solutions = ratio_batch
+    for design, solution in zip(designs, solutions):
+        assert solution.status == al.CONVERGED, (solution.status, solution.violations)
+        record = codesign.design_record(design, solution)
+        assert record["max_voltage_needed_V"] <= 38.0 + 1e-3
+        assert record["peak_joint_power_W"] <= POWER_LIMIT + 1e-4
+    # the same design in another batch (four copies) solves to the same gait: designs do not interact
+    again = codesign.solve_designs(short_solver, [designs[1]] * 4, SPEED, POWER_LIMIT,
+                                   x0=np.tile(paper_solutions[1].x, (4, 1)))
+    for solution in again + [solutions[3]]:
+        np.testing.assert_allclose(solution.x, solutions[1].x, rtol=1e-9, atol=1e-12)
+        assert solution.cost == pytest.approx(solutions[1].cost, rel=1e-10)
+    # motors make walking dearer than the ideal drives' J: armature, drive masses, R i^2 over int u^2
+    assert solutions[1].cost != pytest.approx(paper_solutions[1].cost, rel=0.05)
+
+
+def test_gradient_of_the_optimal_joule_energy_matches_re_solved_optima(short_solver, ratio_batch):
+    """Envelope-theorem gradient d J*/d log N (all four joints together) at the centre design against
+    central differences of the optima re-solved at log N +- d."""
+    designs, log_ratio, solutions = ratio_batch
+    gradient = codesign.ratio_gradient(short_solver)
+    per_joint = gradient(codesign.stack(designs), np.tile(log_ratio[:, None], (1, 4)), SPEED, POWER_LIMIT,
+                         0.2, solutions)
+    finite_difference = (solutions[2].cost - solutions[0].cost) / (2 * LOG_STEP)
+    assert per_joint[1].sum() == pytest.approx(finite_difference, rel=2e-3)
+    np.testing.assert_allclose(per_joint[3], per_joint[1], rtol=1e-12)
