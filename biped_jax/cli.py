@@ -3,7 +3,8 @@
 ``biped-jax reproduce --out DIR`` runs the paper's study (optimal steps of M1-M4, the 20 W question,
 the smallest feasible power limits) and writes tables (markdown), figures (PNG) and ``results.json``
 into DIR. ``biped-jax kelly --out DIR`` solves Kelly's five-link biped benchmark with the same optimiser
-and writes ``kelly.json``. ``biped-jax donald`` walks DONALD in MJX.
+and writes ``kelly.json``. ``biped-jax donald`` walks DONALD in MJX,
+``biped-jax codesign`` co-designs gear ratios, windings and masses with the gait.
 ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
 the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 """
@@ -11,6 +12,7 @@ the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
@@ -31,6 +33,19 @@ def configure_jax(cache_dir: str | None = None) -> None:
                                         str(Path.home() / ".cache" / "biped_jax" / "jax"))
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+@contextlib.contextmanager
+def live_progress(quiet_prefixes: tuple[str, ...] = ()):
+    """A live status line with the elapsed time; yields ``progress(message)``, which also logs every
+    message that does not start with one of ``quiet_prefixes`` (frequent per-iteration lines)."""
+    started = time.perf_counter()
+    with console.status("starting") as status:
+        def progress(message: str) -> None:
+            status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
+            if not (quiet_prefixes and message.startswith(quiet_prefixes)):
+                console.log(message)
+        yield progress
 
 
 def _step_report(mass_class: str, gait) -> tuple[dict, dict]:
@@ -154,11 +169,7 @@ def reproduce(out: Path, steps: int, degree: int, bisections: int) -> dict:
     from biped_jax.gait import GaitSettings
 
     started = time.perf_counter()
-    with console.status("starting") as status:
-        def progress(message: str) -> None:
-            status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
-            if not message.startswith(("M1-M4:", "20 W:", "restart:")):
-                console.log(message)
+    with live_progress(("M1-M4:", "20 W:", "restart:")) as progress:
         results = study.run_study(out, GaitSettings(steps=steps, degree=degree), bisections, progress)
     for record in results["models"]:
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g}, largest violation "
@@ -176,11 +187,7 @@ def kelly(out: Path, steps: int, degree: int) -> dict:
 
     settings = dataclasses.replace(benchmark.KELLY_SETTINGS, steps=steps, degree=degree)
     started = time.perf_counter()
-    with console.status("starting") as status:
-        def progress(message: str) -> None:
-            status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
-            if not message.startswith("outer iteration"):
-                console.log(message)
+    with live_progress(("outer iteration",)) as progress:
         record = benchmark.run_kelly(out, settings, progress)
     console.print(f"Kelly's five-link biped: {record['status']}, J = {record['cost']:.4g} N^2 m^2 s on "
                   f"{record['steps']} Euler steps ({record['cost_coarse']:.4g} on {record['steps_coarse']}; "
@@ -195,10 +202,7 @@ def donald_walk(out: Path, steps: int, faster: bool = False) -> dict:
     from biped_jax import donald_study
 
     started = time.perf_counter()
-    with console.status("starting") as status:
-        def progress(message: str) -> None:
-            status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
-            console.log(message)
+    with live_progress() as progress:
         run = donald_study.run_faster if faster else donald_study.run_donald
         report = run(out, steps, progress)
     if faster:
@@ -213,6 +217,35 @@ def donald_walk(out: Path, steps: int, faster: bool = False) -> dict:
     console.print(f"wrote {out}/{name}.json, {name}_walk.png, {name}_torque_speed.png, {name}_replay.npz "
                   f"in {time.perf_counter() - started:.0f} s")
     return report
+
+
+def codesign(out: Path, steps: int, degree: int, iterations: int) -> dict:
+    """The co-design studies; see :mod:`biped_jax.codesign_study`."""
+    from biped_jax import codesign_study
+    from biped_jax.gait import GaitSettings
+
+    started = time.perf_counter()
+    with live_progress() as progress:
+        results = codesign_study.run_codesign(out, GaitSettings(steps=steps, degree=degree), iterations, progress)
+    for speed, fit in results["mass_scaling"]["fits"].items():
+        console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
+                      f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
+    limits = results["speed_limits"]
+    best = int(np.nanargmax(np.nan_to_num(limits["max_speed_mps"], nan=-1.0)))
+    console.print(f"(b) fastest: {limits['max_speed_mps'][best]:.3f} m/s with {limits['gearheads'][best]}")
+    front = [results["pareto"]["designs"][i] for i in results["pareto"]["pareto"]]
+    console.print("(c) Pareto front: " + ", ".join(
+        f"{r['winding']} + {r['gearhead']} ({r['total_mass_kg']:.2f} kg, {r['joule_energy_per_metre_J_per_m']:.3g} J/m)"
+        for r in front))
+    optimum = results["co_optimisation"]
+    if optimum["best"] is None:
+        console.print("(d) no snapped design has a converged gait")
+    else:
+        record = optimum["snapped"][optimum["best"]]
+        console.print(f"(d) best snapped design: {', '.join(record['gearheads'])}: {record['status']}, "
+                      f"{record['joule_energy_J']:.4g} J per step")
+    console.print(f"wrote {out}/codesign.json and four figures in {time.perf_counter() - started:.0f} s")
+    return results
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -234,6 +267,12 @@ def main(argv: list[str] | None = None) -> int:
     walker.add_argument("--steps", type=int, default=8, help="steps to walk (default 8)")
     walker.add_argument("--faster", action="store_true",
                         help="first optimise the gait for speed (tens of minutes), then walk the optimum")
+    design = commands.add_parser("codesign", help="co-design studies: gear ratios, windings and masses with "
+                                 "the gait (figures, JSON; tens of minutes)")
+    design.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    design.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
+    design.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
+    design.add_argument("--iterations", type=int, default=5, help="co-optimisation iterations (default 5)")
     drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
     drive.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     drive.add_argument("--gaits", type=Path, default=None,
@@ -284,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "step":
         heuristic_steps(args.out)
         return 0
-    for name in ("steps", "degree", "bisections"):
+    for name in ("steps", "degree", "bisections", "iterations"):
         if getattr(args, name, 1) < 1:
             parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     if args.command == "kelly":
@@ -292,6 +331,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.command == "donald":
         donald_walk(args.out, args.steps, args.faster)
+        return 0
+    if args.command == "codesign":
+        codesign(args.out, args.steps, args.degree, args.iterations)
         return 0
     reproduce(args.out, args.steps, args.degree, args.bisections)
     return 0

@@ -201,12 +201,14 @@ def unstack(designs: DriveDesign) -> list[DriveDesign]:
 # ----------------------------------------------------------------------------- batch evaluation
 
 def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
-                  names: list[str] | None = None, progress=None) -> list:
+                  names: list[str] | None = None, progress=None,
+                  summary: Callable[[str], None] | None = None) -> list:
     """Solves the gait of every design in one batch (one compiled program per batch size).
 
     ``speed`` (m/s), ``power_limit`` (W) and ``step_length`` (m) are scalars or one value per design;
     x0 (B, n) warm-starts (e.g. a solved reference gait repeated). Returns ``GaitSolution``s whose cost
-    is the Joule energy (J), with status and per-group violations (the voltage limit among them).
+    is the Joule energy (J), with status and per-group violations (the voltage limit among them);
+    ``summary`` receives one line on the batch (statuses, gradients, time).
     """
     size = len(designs)
     per_design = lambda value: np.broadcast_to(np.asarray(value, dtype=float), (size,))  # noqa: E731
@@ -216,18 +218,28 @@ def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_l
             raise ValueError(f"{name} must be positive, got {values.tolist()}")
     models = [gait_model(d, v, p, length) for d, v, p, length in zip(designs, speeds, limits, lengths)]
     names = names or [f"design {b}" for b in range(size)]
-    return solver.solve(names, models, x0=x0, progress=progress)
+    solutions = solver.solve(names, models, x0=x0, progress=progress)
+    if summary:
+        statuses = [s.status for s in solutions]
+        summary(f"{statuses.count(al.CONVERGED)} of {size} converged "
+                f"({', '.join(sorted(set(statuses) - {al.CONVERGED})) or 'all'}), "
+                f"gradients per design up to {max(s.gradients for s in solutions)}, "
+                f"{solutions[0].wall_time_s:.0f} s")
+    return solutions
 
 
 def design_record(design: DriveDesign, solution) -> dict:
-    """A JSON-ready summary of one solved design: hardware, status, Joule energy (J and J/m), the
-    integral of u^T u, peak joint power, the largest voltage needed and the violations."""
+    """A JSON-ready summary of one solved design: hardware, status, Joule energy (J and J/m; the
+    objective, with the smooth efficiency switch, and with the exact one), the integral of u^T u, peak
+    joint power, the largest voltage needed (exact efficiency law) and the violations."""
     trajectory = solution.trajectory
     drives = joint_drives(design)
     torque_at_motor = drive_model.motor_torque(trajectory.u, trajectory.joint_speed, drives.ratio,
                                                drives.efficiency)
     needed = np.abs(np.asarray(drive_model.voltage(
         torque_at_motor, drive_model.motor_speed(trajectory.joint_speed, drives.ratio), drives)))
+    dt = float(trajectory.t[1] - trajectory.t[0])
+    exact_joule = float(np.sum(dt * np.asarray(drive_model.joule_loss(torque_at_motor, drives))))
     return {
         "ratio": np.asarray(design.ratio).tolist(),
         "torque_constant_Nm_per_A": float(design.torque_constant[0]),
@@ -239,6 +251,7 @@ def design_record(design: DriveDesign, solution) -> dict:
         "status": solution.status, "max_violation": solution.max_violation,
         "violations": solution.violations,
         "joule_energy_J": solution.cost,
+        "joule_energy_exact_switch_J": exact_joule,
         "joule_energy_per_metre_J_per_m": solution.cost / solution.step_length_m,
         "int_u2_N2m2s": float(gait.cost(trajectory)),
         "peak_joint_power_W": float(np.max(np.abs(np.asarray(trajectory.joint_power)))),
@@ -305,7 +318,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     step = np.full(len(designs), max_step)
     apply = jax.jit(jax.vmap(lambda d, t: with_ratio(d, t, catalogue)))
     solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(theta))), speed, power_limit,
-                              step_length, x0=x0)
+                              step_length, x0=x0, summary=progress)
     path = CoOptimisation([], [], [], [], [])
 
     def record(theta_, solutions_):
@@ -321,7 +334,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
         trial = np.where(converged[:, None], np.clip(theta - step[:, None] * grad / scale, low, high), theta)
         x_warm = jnp.stack([jnp.asarray(s.x) for s in solutions])
         trial_solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(trial))), speed, power_limit,
-                                        step_length, x0=x_warm)
+                                        step_length, x0=x_warm, summary=progress)
         better = np.array([t.status == al.CONVERGED and (s.status != al.CONVERGED or t.cost < s.cost)
                            for s, t in zip(solutions, trial_solutions)])
         theta = np.where(better[:, None], trial, theta)

@@ -1,0 +1,71 @@
+"""Co-design throughput: gait problems of different designs solved per second, by batch size.
+
+Each batch holds B different designs (the paper's RE 25 42 V drive with gear ratios spread
+log-uniformly over 30-110:1 and total masses over 10-14 kg) at M2's speed and power limit, each solved
+from the heuristic start to convergence (or its status) by the library's batched augmented-Lagrangian
+solver: one compiled program per batch size. Each batch is solved twice: the first call compiles and
+solves, the second only solves (reported as the throughput). Results are saved after every batch.
+
+    python benchmarks/codesign_throughput.py --batch 1 16 64
+"""
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from _results import save_results
+
+
+def designs_for(batch: int):
+    from biped_jax import codesign
+    ratios = np.exp(np.linspace(np.log(30.0), np.log(110.0), batch)) if batch > 1 else np.array([66.22])
+    masses = np.linspace(10.0, 14.0, batch) if batch > 1 else np.array([12.0])
+    rng = np.random.default_rng(0)
+    rng.shuffle(masses)  # pair ratios and masses at random
+    return [codesign.with_ratio(codesign.catalogue_design(total_mass=float(m)), np.full(4, np.log(n)))
+            for n, m in zip(ratios, masses)]
+
+
+def measure(solver, batch: int) -> dict:
+    from biped_jax import codesign
+    designs = designs_for(batch)
+    started = time.perf_counter()
+    codesign.solve_designs(solver, designs, 0.555, 20.0)
+    first = time.perf_counter() - started
+    started = time.perf_counter()
+    solutions = codesign.solve_designs(solver, designs, 0.555, 20.0)
+    seconds = time.perf_counter() - started
+    converged = sum(s.status == "converged" for s in solutions)
+    return {"batch": batch, "compile_and_solve_s": first, "solve_s": seconds, "compile_s_estimate": first - seconds,
+            "designs_per_second": batch / seconds, "converged": converged,
+            "mean_gradients": float(np.mean([s.gradients for s in solutions])),
+            "statuses": sorted({s.status for s in solutions})}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
+    parser.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
+    parser.add_argument("--degree", type=int, default=6)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", True)
+    from biped_jax import gait
+    from biped_jax.gait_solver import GaitSolver
+    solver = GaitSolver(gait.GaitSettings(steps=args.steps, degree=args.degree))
+    rows = []
+    print(f"{'batch':>6s} {'compile+solve s':>16s} {'solve s':>9s} {'designs/s':>10s} {'converged':>10s} "
+          f"{'gradients':>10s}", flush=True)
+    for batch in args.batch:
+        row = measure(solver, batch)
+        rows.append(row)
+        print(f"{batch:6d} {row['compile_and_solve_s']:16.1f} {row['solve_s']:9.1f} {row['designs_per_second']:10.3f} "
+              f"{row['converged']:6d}/{batch:<3d} {row['mean_gradients']:10.0f}", flush=True)
+        save_results("codesign_throughput", {"steps": args.steps, "degree": args.degree, "speed": 0.555,
+                                             "power_limit": 20.0, "float": "float64"}, rows, args.out)
+
+
+if __name__ == "__main__":
+    main()
