@@ -56,7 +56,8 @@ def test_feedback_inside_the_rollout_tracks_the_reference_exactly(solver):
     step, the applied torques reproduce the recorded accelerations in MJX, and relabelling makes the
     actuated positions periodic by construction."""
     model = gait.gait_model("12kg", 0.555, 20.0)
-    batch = jax.tree.map(lambda a: a[None], model)
+    # a batch of four strongly typed copies: the rollout program the paper fixture compiled
+    batch = jax.tree.map(lambda a: jnp.asarray(jnp.stack([a] * 4), dtype=float), model)
     x = jax.jit(jax.vmap(lambda m: gait.initial_guess(m, SETTINGS)))(batch)
     trajectory = jax.tree.map(lambda a: a[0], solver.simulate(x, batch))
     reference = gait.bezier(gait.bezier_coefficients(x[0], SETTINGS), jnp.linspace(0, 1, SETTINGS.steps + 1))
