@@ -6,6 +6,18 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
+
+
+def median_seconds(function, args, repeats: int) -> float:
+    """Median wall time of ``function(*args)`` over ``repeats`` calls after one warm-up call, s."""
+    jax.block_until_ready(function(*args))
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        jax.block_until_ready(function(*args))
+        times.append(time.perf_counter() - started)
+    return float(np.median(times))
 
 
 def save_results(benchmark: str, settings: dict, rows: list, folder: Path) -> Path:

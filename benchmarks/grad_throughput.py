@@ -20,7 +20,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _results import save_results
+from _results import median_seconds, save_results
 
 SPEED, POWER_LIMIT, STEP_LENGTH = 0.555, 20.0, 0.2  # model M2
 
@@ -50,13 +50,7 @@ def measure_mjx(solver, model, x0, multipliers, batch, repeats):
     started = time.perf_counter()
     compiled = solver.compiled.value_and_grad.lower(*args).compile()
     compile_s = time.perf_counter() - started
-    jax.block_until_ready(compiled(*args))
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        jax.block_until_ready(compiled(*args))
-        times.append(time.perf_counter() - started)
-    seconds = float(np.median(times))
+    seconds = median_seconds(compiled, args, repeats)
     (_, _), gradient = compiled(*args)
     return {"backend": "mjx", "batch": batch, "compile_s": compile_s, "seconds_per_call": seconds,
             "gradients_per_second": batch / seconds, "ms_per_gradient": 1e3 * seconds / batch}, \

@@ -11,8 +11,7 @@ from pathlib import Path
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-from _results import save_results
+from _results import median_seconds, save_results
 
 HORIZON, TIMESTEP = 200, 1.8e-3
 VARIANTS = ((True, 1), (False, 1), (True, 2))  # (checkpoint each step, scan unroll)
@@ -42,16 +41,6 @@ def make_rollout_cost(biped, remat: bool, unroll: int):
     return rollout_cost
 
 
-def median_ms(function, args, repeats: int = 25) -> float:
-    jax.block_until_ready(function(*args))
-    times = []
-    for _ in range(repeats):
-        started = time.perf_counter()
-        jax.block_until_ready(function(*args))
-        times.append(time.perf_counter() - started)
-    return 1e3 * float(np.median(times))
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--float32", action="store_true", help="float32 instead of float64")
@@ -75,7 +64,8 @@ def main():
     for round_ in range(3):
         for (remat, unroll), (compile_s, forward, gradient) in compiled.items():
             row = dict(round=round_, remat=remat, unroll=unroll, float32=options.float32, compile_grad_s=compile_s,
-                       forward_ms=median_ms(forward, args), grad_ms=median_ms(gradient, args))
+                       forward_ms=1e3 * median_seconds(forward, args, 25),
+                       grad_ms=1e3 * median_seconds(gradient, args, 25))
             rows.append(row)
             print(row, flush=True)
     save_results("profile_rollout", {"horizon": HORIZON, "dtype": "float32" if options.float32 else "float64"},
