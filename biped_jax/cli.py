@@ -231,7 +231,7 @@ def codesign(out: Path, steps: int, degree: int, iterations: int) -> dict:
         console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
                       f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
     limits = results["speed_limits"]
-    best = int(np.nanargmax(np.nan_to_num(limits["max_speed_mps"], nan=-1.0)))
+    best = int(np.argmax(np.nan_to_num(limits["max_speed_mps"], nan=-1.0)))
     console.print(f"(b) fastest: {limits['max_speed_mps'][best]:.3f} m/s with {limits['gearheads'][best]}")
     front = [results["pareto"]["designs"][i] for i in results["pareto"]["pareto"]]
     console.print("(c) Pareto front: " + ", ".join(

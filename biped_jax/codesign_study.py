@@ -25,7 +25,6 @@ BATCH = 16
 SPEEDS = (0.417, 0.555)  # M1/M3 and M2/M4, m/s
 MASSES = tuple(np.linspace(8.0, 24.0, 8))  # kg
 POWER_LIMIT = 20.0  # W, the RE 25's rating and the paper's M_W for the 12 kg robot
-NO_POWER_LIMIT = 1e6  # W
 #: The study's windings: the paper's three (estimates) and the datasheet 24 V winding; the paper's
 #: 42 V first, so that its gait (first batch, heuristic starts) warm-starts the second batch.
 WINDINGS = ("RE25-42V", "RE25-118752", "RE25-30V", "RE25-48V")
@@ -63,7 +62,7 @@ def mass_scaling(solver: GaitSolver, say) -> dict:
             designs.append(codesign.catalogue_design(total_mass=float(mass), supply_voltage=drives.NO_VOLTAGE_LIMIT))
             speeds.append(speed)
     say("(a) 8 masses x 2 speeds in one batch")
-    solutions = codesign.solve_designs(solver, designs, speeds, NO_POWER_LIMIT, summary=say)
+    solutions = codesign.solve_designs(solver, designs, speeds, gait.NO_POWER_LIMIT, summary=say)
     records = [codesign.design_record(d, s) for d, s in zip(designs, solutions)]
     fits = {}
     for speed in SPEEDS:
@@ -94,7 +93,7 @@ def speed_limits(solver: GaitSolver, x_start, say, bisections: int = 5, low: flo
         solutions = codesign.solve_designs(solver, designs, trial, POWER_LIMIT, x0=warm, summary=say)
         for b, solution in enumerate(solutions):
             if _converged(solution):
-                feasible[b] = max(np.nan_to_num(feasible[b], nan=-1.0), trial[b])
+                feasible[b] = trial[b]  # trials only rise above a feasible speed
                 lower[b], warm[b] = trial[b], solution.x
             else:
                 upper[b] = trial[b]

@@ -45,6 +45,9 @@ POWER_SCALE = 10.0  # W
 TORQUE_SCALE = 10.0  # N m
 VOLTAGE_SCALE = 10.0  # V
 
+#: Power limit standing for "no power limit" (Kelly's benchmark, the co-design's mass study), W.
+NO_POWER_LIMIT = 1e6
+
 
 @dataclasses.dataclass(frozen=True)
 class GaitSettings:
@@ -91,23 +94,21 @@ class GaitModel:
     drives: drive_model.JointDrives
 
 
-def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2,
-               design: Design | None = None, drives: drive_model.JointDrives | None = None) -> GaitModel:
-    """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly"); raises
-    ValueError naming a non-positive speed, limit or length, or a step beyond the legs' reach.
-    ``design`` (default: the mass class's MJCF file) and ``drives`` (default: ideal, the paper's
-    problem) replace the robot's hardware."""
+def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
+    """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
+    drives (the paper's problem; ``biped_jax.codesign.gait_model`` fits real ones); raises ValueError
+    naming a non-positive speed, limit or length, or a step beyond the legs' reach."""
     for name, value in (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive, got {value!r}")
-    design = hs.planar_design(mass_class) if design is None else design
+    design = hs.planar_design(mass_class)
     reach = 2 * PLANAR_SPECS[mass_class].leg_length
     if step_length >= reach:
         raise ValueError(f"step_length {step_length} m is beyond the legs' reach (< {reach:.3g} m)")
     return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),
                      power_limit=jnp.asarray(float(power_limit)),
-                     drives=drive_model.ideal_drives() if drives is None else drives)
+                     drives=drive_model.ideal_drives())
 
 
 @jax.tree_util.register_dataclass

@@ -34,7 +34,7 @@ TORQUE_BOUND = 100.0  # N m, Kelly's uMax
 #: Friction coefficient standing for "no limit": the cone then only keeps F_z >= 0.
 NO_FRICTION_LIMIT = 1e3
 #: Power limit standing for "none", W.
-NO_POWER_LIMIT = 1e6
+NO_POWER_LIMIT = gait.NO_POWER_LIMIT
 #: Settings of the benchmark: a finer grid than the paper's study (the cost of a step converges as dt).
 KELLY_SETTINGS = gait.GaitSettings(steps=200, degree=8, torque_bound=TORQUE_BOUND,
                                    friction=NO_FRICTION_LIMIT, knee_max=3.0)
