@@ -4,6 +4,7 @@
 the smallest feasible power limits) and writes tables (markdown), figures (PNG) and ``results.json``
 into DIR. ``biped-jax kelly --out DIR`` solves Kelly's five-link biped benchmark with the same optimiser
 and writes ``kelly.json``. ``biped-jax donald`` walks DONALD in MJX,
+``biped-jax humanoid`` replays the optimal gait on the 16-DoF humanoid under contact,
 ``biped-jax codesign`` co-designs gear ratios, windings and masses with the gait.
 ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
 the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
@@ -219,6 +220,30 @@ def donald_walk(out: Path, steps: int, faster: bool = False) -> dict:
     return report
 
 
+def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | None) -> dict:
+    """The optimal gait replayed on the humanoid; see :mod:`biped_jax.humanoid_study`."""
+    from biped_jax import humanoid_study
+
+    started = time.perf_counter()
+    with live_progress(("humanoid: t =", f"{model}: outer")) as progress:
+        report = humanoid_study.run_humanoid(out, model, steps, settings, gaits, progress)
+    verdict = "fell" if report["fell"] else "did not fall"
+    errors = report["tracking_error_rad"]
+    console.print(f"humanoid ({report['mass_class']}) replaying {model}: {report['steps']} touchdowns, "
+                  f"{report['distance_m']:.3f} m at {report['speed_mps']:.3f} m/s (gait: "
+                  f"{report['gait_speed_mps']:.3f}), {verdict}; joint tracking error RMS "
+                  f"{1e3 * errors['rms']:.1f} mrad, max {1e3 * errors['max']:.1f} mrad outside impacts")
+    touchdowns = report["touchdowns"]
+    if touchdowns:
+        impulse, jump = (np.median([t[key] for t in touchdowns])
+                         for key in ("impulse_relative_error", "velocity_jump_relative_error"))
+        console.print(f"touchdowns against the impact map (medians): impulse error {impulse:.0%}, "
+                      f"velocity-jump error {jump:.0%}")
+    console.print(f"wrote {out}/humanoid.json, humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, "
+                  f"humanoid_replay.npz in {time.perf_counter() - started:.0f} s")
+    return report
+
+
 def codesign(out: Path, steps: int, degree: int, iterations: int) -> dict:
     """The co-design studies; see :mod:`biped_jax.codesign_study`."""
     from biped_jax import codesign_study
@@ -267,6 +292,17 @@ def main(argv: list[str] | None = None) -> int:
     walker.add_argument("--steps", type=int, default=8, help="steps to walk (default 8)")
     walker.add_argument("--faster", action="store_true",
                         help="first optimise the gait for speed (tens of minutes), then walk the optimum")
+    replay = commands.add_parser("humanoid", help="experimental: the optimal sagittal gait replayed on the "
+                                 "16-DoF humanoid under contact in MJX (figures, JSON; it falls within two "
+                                 "steps so far, see README)")
+    replay.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    replay.add_argument("--model", default="M2", help="which of the paper's models M1-M4 (default M2)")
+    replay.add_argument("--steps", type=int, default=10, help="steps to walk (default 10)")
+    replay.add_argument("--gaits", type=Path, default=None,
+                        help="folder with results.json from `biped-jax reproduce` (default: solve the model here)")
+    replay.add_argument("--gait-steps", type=int, default=60,
+                        help="Euler steps of the gait problem when solving here (default 60)")
+    replay.add_argument("--degree", type=int, default=6, help="Bezier degree when solving here (default 6)")
     design = commands.add_parser("codesign", help="co-design studies: gear ratios, windings and masses with "
                                  "the gait (figures, JSON; tens of minutes)")
     design.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
@@ -323,14 +359,22 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "step":
         heuristic_steps(args.out)
         return 0
-    for name in ("steps", "degree", "bisections", "iterations"):
+    for name in ("steps", "degree", "bisections", "iterations", "gait_steps"):
         if getattr(args, name, 1) < 1:
-            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.command == "kelly":
         kelly(args.out, args.steps, args.degree)
         return 0
     if args.command == "donald":
         donald_walk(args.out, args.steps, args.faster)
+        return 0
+    if args.command == "humanoid":
+        from biped_jax.gait import GaitSettings
+        try:
+            humanoid_walk(args.out, args.model, args.steps, GaitSettings(steps=args.gait_steps, degree=args.degree),
+                          args.gaits)
+        except (ValueError, FileNotFoundError) as error:
+            parser.error(str(error))
         return 0
     if args.command == "codesign":
         codesign(args.out, args.steps, args.degree, args.iterations)

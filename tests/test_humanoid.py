@@ -1,0 +1,122 @@
+"""The humanoid replay's pieces: the planarised model, the impact map on the humanoid, the reference and
+the start state taken from a solved gait (the MJX contact replay itself is exercised by the CLI)."""
+
+import dataclasses
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from test_humanoid_sagittal import _sagittal_equivalent
+
+from biped_jax import gait, humanoid, robots
+from biped_jax import hybrid_step as hs
+
+
+@pytest.fixture(scope="module")
+def planarised():
+    model = humanoid.planarised_humanoid("12kg")
+    return model, humanoid.Layout.of(model)
+
+
+def _mass_matrix(model, qpos):
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_forward(model, data)
+    mass = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, mass)
+    return mass, data.qfrc_bias.copy()
+
+
+def test_planarising_constraint_keeps_the_sagittal_dynamics(planarised):
+    """The planar base only removes the lateral translation, roll and yaw: at the same pose the mass
+    matrix and gravity of the remaining coordinates equal the free-base humanoid's."""
+    model, _ = planarised
+    free = robots.load_mj_model("humanoid16_12kg")
+    rng = np.random.default_rng(0)
+    joints = rng.normal(scale=0.3, size=16)
+    x, z, pitch = 0.1, 0.3, 0.2
+    planar_q = np.concatenate([[x, z, pitch], joints])
+    free_q = np.concatenate([[x, 0.0, z, np.cos(pitch / 2), 0.0, np.sin(pitch / 2), 0.0], joints])
+    planar_mass, planar_bias = _mass_matrix(model, planar_q)
+    free_mass, free_bias = _mass_matrix(free, free_q)
+    free_columns = np.concatenate([[0, 2, 4], 6 + np.arange(16)])  # world x, z, body pitch rate, joints
+    armature = np.zeros(model.nv)
+    armature[[model.joint(f"ankle_{k}_{s}").dofadr[0] for k in ("pitch", "roll") for s in "lr"]] = (
+        humanoid.ANKLE_ARMATURE)
+    np.testing.assert_allclose(planar_mass, free_mass[np.ix_(free_columns, free_columns)] + np.diag(armature),
+                               atol=1e-12)
+    np.testing.assert_allclose(planar_bias, free_bias[free_columns], atol=1e-10)
+    assert model.opt.timestep == humanoid.TIMESTEP
+
+
+def test_impact_map_on_the_humanoid_equals_the_optimisers(planarised):
+    """With the held joints locked, the humanoid's rigid impact is the optimiser's impact map of the
+    planar biped whose links are the humanoid's composite bodies."""
+    model, layout = planarised
+    planar = _sagittal_equivalent(robots.load_mj_model("humanoid16_12kg"))
+    floating = robots.put_mjx_model(planar)
+    qf = np.array([0.05, 0.27, 0.15, -0.45, 0.3, 0.2, 0.25])
+    qfd = np.array([0.6, -0.2, -0.4, 1.5, -2.0, -3.0, 1.0])
+    # put the landing foot (leg 2) on the ground
+    qf[1] -= float(hs.site_position(floating, jnp.asarray(qf), "foot2")[2])
+    expected_after, expected_impulse = (np.asarray(a) for a in hs.impact_map(floating, jnp.asarray(qf),
+                                                                               jnp.asarray(qfd)))
+    qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
+    columns = humanoid.sagittal_columns(layout, 0)
+    qpos[columns], qvel[columns] = qf, qfd
+    jump, impulse = humanoid.rigid_impact(model, layout, qpos, qvel, stance=0)
+    np.testing.assert_allclose(impulse, expected_impulse, rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(qfd + jump, expected_after, rtol=1e-8, atol=1e-10)
+
+
+@pytest.fixture(scope="module")
+def m2_reference(paper_solutions):
+    solution = next(s for s in paper_solutions if s.name == "M2")
+    model = gait.gait_model("12kg", solution.speed_mps, solution.power_limit_W)
+    settings = gait.GaitSettings(steps=20, degree=5)
+    return solution, humanoid.gait_reference(solution.x, model, settings, solution.trajectory), settings
+
+
+def test_reference_follows_the_solved_gait(m2_reference):
+    solution, reference, settings = m2_reference
+    tr = solution.trajectory
+    phase = np.asarray(tr.t) / solution.step_time_s
+    theta = np.interp(phase, np.asarray(reference.phase), np.asarray(reference.stance_angle))
+    np.testing.assert_allclose(theta, np.asarray(tr.q)[:, 0], atol=1e-3)
+    # the stance leg's path is the optimiser's (only the swing foot's clearance is added)
+    coefficients = gait.bezier_coefficients(jnp.asarray(solution.x), settings)
+    optimal = np.asarray(gait.bezier(coefficients, jnp.asarray(reference.phase)))
+    np.testing.assert_allclose(np.asarray(reference.joints)[:, :2], optimal[:, :2], atol=1e-12)
+    swing_offset = np.abs(np.asarray(reference.joints)[:, 2:] - optimal[:, 2:])
+    assert swing_offset[[0, -1]].max() < 1e-12 and swing_offset.max() < 0.5
+    assert float(reference.step_time) == pytest.approx(solution.step_time_s)
+
+
+def test_start_state_puts_the_stance_foot_at_rest_at_the_origin(m2_reference, planarised):
+    solution, reference, _ = m2_reference
+    model, layout = planarised
+    qpos, qvel = humanoid.initial_state(model, layout, reference, "12kg")
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos, qvel
+    mujoco.mj_forward(model, data)
+    stance, swing = (data.site_xpos[layout.foot_site[k]] for k in (0, 1))
+    np.testing.assert_allclose(stance[[0, 2]], 0.0, atol=1e-9)
+    np.testing.assert_allclose(swing[[0, 2]], [-solution.step_length_m, 0.0], atol=2e-4)  # periodic gait
+    jac = np.zeros((3, model.nv))
+    mujoco.mj_jacSite(model, data, jac, None, layout.foot_site[0])
+    np.testing.assert_allclose(jac @ qvel, 0.0, atol=1e-9)
+
+
+def test_bad_input_is_rejected(m2_reference):
+    solution, reference, settings = m2_reference
+    with pytest.raises(ValueError, match="'20kg'"):
+        humanoid.planarised_humanoid("20kg")
+    with pytest.raises(ValueError, match="steps must be at least 1"):
+        humanoid.replay(reference, steps=0)
+    q = np.array(solution.trajectory.q)
+    q[:, 0] = q[::-1, 0]  # the stance leg swinging backwards
+    backwards = dataclasses.replace(solution.trajectory, q=q)
+    model = gait.gait_model("12kg", solution.speed_mps, solution.power_limit_W)
+    with pytest.raises(ValueError, match="monotonically"):
+        humanoid.gait_reference(solution.x, model, settings, backwards)
