@@ -112,7 +112,6 @@ def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
     phase = np.linspace(0.0, 1.0, PHASE_SAMPLES)
     coefficients = np.asarray(gait.bezier_coefficients(jnp.asarray(x), settings))
     joints = np.asarray(gait.bezier(coefficients, phase))
-    joint_slope = np.asarray(gait.bezier_rate(coefficients, phase))
     step_time = float(model.step_length / model.speed)
     grid = np.asarray(trajectory.t) / step_time
     theta = np.asarray(trajectory.q)[:, 0]
