@@ -50,13 +50,18 @@ def main():
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
     parser.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
     parser.add_argument("--degree", type=int, default=6)
+    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="chain",
+                        help="single-support dynamics (default chain, the co-design study's)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    parser.add_argument("--name", default="codesign_throughput",
+                        help="results file stem, so runs of other batch sizes keep their own file")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     from biped_jax import gait
     from biped_jax.gait_solver import GaitSolver
     from biped_jax.codesign_study import STUDY_OPTIONS
-    solver = GaitSolver(gait.GaitSettings(steps=args.steps, degree=args.degree)).with_options(**STUDY_OPTIONS)
+    settings = gait.GaitSettings(steps=args.steps, degree=args.degree, dynamics=args.dynamics)
+    solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)
     rows = []
     print(f"{'batch':>6s} {'compile s':>16s} {'solve s':>9s} {'designs/s':>10s} {'converged':>10s} "
           f"{'gradients':>10s}", flush=True)
@@ -65,7 +70,7 @@ def main():
         rows.append(row)
         print(f"{batch:6d} {row['compile_s']:16.1f} {row['solve_s']:9.1f} {row['designs_per_second']:10.3f} "
               f"{row['converged']:6d}/{batch:<3d} {row['mean_gradients']:10.0f}", flush=True)
-        save_results("codesign_throughput", {"steps": args.steps, "degree": args.degree, "speed": 0.555,
+        save_results(args.name, {"steps": args.steps, "degree": args.degree, "dynamics": args.dynamics, "speed": 0.555,
                                              "power_limit": 20.0, "float": "float64"}, rows, args.out)
 
 

@@ -118,11 +118,14 @@ def main():
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 256, 1024])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-baseline", action="store_true", help="skip the MuJoCo C baseline")
+    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="mjx",
+                        help="single-support dynamics of the rollout (default mjx)")
+    parser.add_argument("--name", default="grad_throughput", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     from biped_jax import gait
-    settings = gait.GaitSettings(steps=args.steps, degree=args.degree)
+    settings = gait.GaitSettings(steps=args.steps, degree=args.degree, dynamics=args.dynamics)
     solver, model, x0, multipliers = _problem(settings)
     rows, mjx_gradient = [], None
     print(f"{'backend':32s} {'batch':>6s} {'compile s':>10s} {'ms/call':>10s} {'grad/s':>10s} {'ms/grad':>8s}")
@@ -131,11 +134,12 @@ def main():
             row, gradient = measure_mjx(solver, model, x0, multipliers, batch, args.repeats)
         except Exception as error:  # out of memory at large batches: record and stop growing
             print(f"batch {batch}: {type(error).__name__}: {str(error)[:200]}")
-            rows.append({"backend": "mjx", "batch": batch, "error": str(error)[:500]})
+            rows.append({"backend": args.dynamics, "batch": batch, "error": str(error)[:500]})
             break
         mjx_gradient = gradient if mjx_gradient is None else mjx_gradient
+        row["backend"] = args.dynamics
         rows.append(row)
-        print(f"{'mjx (jax.value_and_grad)':32s} {batch:6d} {row['compile_s']:10.1f} "
+        print(f"{args.dynamics + ' (jax.value_and_grad)':32s} {batch:6d} {row['compile_s']:10.1f} "
               f"{1e3 * row['seconds_per_call']:10.1f} {row['gradients_per_second']:10.1f} "
               f"{row['ms_per_gradient']:8.2f}", flush=True)
     if not args.no_baseline:
@@ -144,8 +148,8 @@ def main():
         row["max_relative_difference_to_mjx"] = float(
             np.max(np.abs(gradient - mjx_gradient)) / np.max(np.abs(mjx_gradient)))
         rows.append(row)
-        best = max(r["gradients_per_second"] for r in rows if r["backend"] == "mjx" and "error" not in r)
-        single = next(r for r in rows if r["backend"] == "mjx" and r["batch"] == args.batch[0])
+        best = max(r["gradients_per_second"] for r in rows if r["backend"] == args.dynamics and "error" not in r)
+        single = next(r for r in rows if r["backend"] == args.dynamics and r["batch"] == args.batch[0])
         row["mjx_single_speedup"] = single["gradients_per_second"] / row["gradients_per_second"]
         row["mjx_best_batch_speedup"] = best / row["gradients_per_second"]
         print(f"{'mujoco C, central differences':32s} {1:6d} {'':10s} {1e3 * row['seconds_per_call']:10.1f} "
@@ -154,7 +158,7 @@ def main():
               f"{row['max_relative_difference_to_mjx']:.1e} relative)")
         print(f"MJX over MuJoCo C finite differences: {row['mjx_single_speedup']:.1f}x at batch "
               f"{args.batch[0]}, {row['mjx_best_batch_speedup']:.1f}x at the best batch")
-    save_results("grad_throughput", {"steps": args.steps, "degree": args.degree, "model": "M2",
+    save_results(args.name, {"steps": args.steps, "degree": args.degree, "model": "M2", "dynamics": args.dynamics,
                                      "decision_variables": int(x0.size), "float": "float64"},
                  rows, args.out)
 

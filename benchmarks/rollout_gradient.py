@@ -18,13 +18,19 @@ import numpy as np
 from _results import save_results
 
 
-def rollout_cost(biped, design, q0, qd0, controls):
+def rollout_cost(biped, design, q0, qd0, controls, dynamics="mjx"):
     from biped_jax import hybrid_step as hs
-    biped = hs.with_design(biped, design)
-    trajectory = hs.stance_rollout(biped.pinned, q0, qd0, controls)
-    foot, _ = hs.swing_foot(biped.pinned, trajectory.q[-1], trajectory.qd[-1])
-    return (jnp.sum(trajectory.q[-1] ** 2) + 0.1 * jnp.sum(trajectory.qd[-1] ** 2) + foot[1] ** 2
-            + 1e-3 * jnp.sum(controls ** 2) + 1e-6 * jnp.sum(trajectory.ground_force[:, 1] ** 2))
+    from biped_jax import planar_chain
+    pinned = hs.with_design(biped, design).pinned
+    if dynamics == "chain":
+        q, qd, _, force = planar_chain.stance_rollout(planar_chain.PlanarChain.from_model(biped.pinned), pinned,
+                                                      q0, qd0, controls)
+    else:
+        trajectory = hs.stance_rollout(pinned, q0, qd0, controls)
+        q, qd, force = trajectory.q, trajectory.qd, trajectory.ground_force
+    foot, _ = hs.swing_foot(pinned, q[-1], qd[-1])
+    return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + foot[1] ** 2
+            + 1e-3 * jnp.sum(controls ** 2) + 1e-6 * jnp.sum(force[:, 1] ** 2))
 
 
 def measure(function, args, repeats):
@@ -46,6 +52,9 @@ def main():
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--float32", action="store_true", help="float32 instead of float64")
+    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="mjx",
+                        help="MJX's pipeline (hybrid_step.stance_rollout) or the closed-form planar chain")
+    parser.add_argument("--name", default="rollout_gradient", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", not args.float32)
@@ -57,7 +66,7 @@ def main():
     q0 = jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0])
     qd0 = jnp.array([2.5, 0.0, 2.5, -4.0, 0.0])
     controls = jnp.full((args.horizon, 4), 0.5)
-    gradient = jax.grad(lambda d, q, qd, u: rollout_cost(biped, d, q, qd, u), argnums=(1, 2, 3))
+    gradient = jax.grad(lambda d, q, qd, u: rollout_cost(biped, d, q, qd, u, args.dynamics), argnums=(1, 2, 3))
 
     rows = []
     for batch in args.batch:
@@ -76,7 +85,7 @@ def main():
         print(f"batch {batch:6d}: compile {compile_s:7.1f} s   run {1e3 * run_s:9.2f} ms   "
               f"{batch / run_s:10.1f} gradients/s   {1e3 * run_s / batch:8.2f} ms/gradient", flush=True)
 
-    save_results("rollout_gradient", {"dtype": "float32" if args.float32 else "float64",
+    save_results(args.name, {"dtype": "float32" if args.float32 else "float64", "dynamics": args.dynamics,
                                       "horizon": args.horizon, "timestep_s": 1.8e-3}, rows, args.out)
 
 

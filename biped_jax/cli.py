@@ -25,6 +25,11 @@ from rich.console import Console
 
 console = Console(stderr=True)
 
+#: ``biped_jax.gait.DYNAMICS``, written out so that ``--help`` does not import JAX (a test keeps them equal).
+DYNAMICS = ("mjx", "chain")
+DYNAMICS_HELP = ("single-support dynamics of the gait rollout: MJX's pipeline, or the closed-form planar "
+                 "chain (equal to MJX's to rounding, several times faster)")
+
 
 def configure_jax(cache_dir: str | None = None) -> None:
     """float64 and the persistent compilation cache (set by the entry point, never on import)."""
@@ -164,14 +169,15 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, steps: int, degree: int, bisections: int) -> dict:
+def reproduce(out: Path, steps: int, degree: int, bisections: int, dynamics: str = "mjx") -> dict:
     """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
     from biped_jax import study
     from biped_jax.gait import GaitSettings
 
     started = time.perf_counter()
     with live_progress(("M1-M4:", "20 W:", "restart:")) as progress:
-        results = study.run_study(out, GaitSettings(steps=steps, degree=degree), bisections, progress)
+        results = study.run_study(out, GaitSettings(steps=steps, degree=degree, dynamics=dynamics), bisections,
+                                  progress)
     for record in results["models"]:
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g}, largest violation "
                       f"{record['max_violation']:.1e}, smallest feasible M_W {record['min_power_limit_W']:.2f} W")
@@ -244,14 +250,15 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
     return report
 
 
-def codesign(out: Path, steps: int, degree: int, iterations: int) -> dict:
+def codesign(out: Path, steps: int, degree: int, iterations: int, dynamics: str = "chain") -> dict:
     """The co-design studies; see :mod:`biped_jax.codesign_study`."""
     from biped_jax import codesign_study
     from biped_jax.gait import GaitSettings
 
     started = time.perf_counter()
     with live_progress() as progress:
-        results = codesign_study.run_codesign(out, GaitSettings(steps=steps, degree=degree), iterations, progress)
+        results = codesign_study.run_codesign(out, GaitSettings(steps=steps, degree=degree, dynamics=dynamics),
+                                              iterations, progress)
     for speed, fit in results["mass_scaling"]["fits"].items():
         console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
                       f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
@@ -282,6 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
     run.add_argument("--bisections", type=int, default=6,
                      help="bisection steps for the smallest feasible power limit (default 6)")
+    run.add_argument("--dynamics", choices=DYNAMICS, default="mjx", help=DYNAMICS_HELP + " (default mjx)")
     bench = commands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
     bench.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     bench.add_argument("--steps", type=int, default=200,
@@ -309,6 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     design.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
     design.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
     design.add_argument("--iterations", type=int, default=5, help="co-optimisation iterations (default 5)")
+    design.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
     drive.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     drive.add_argument("--gaits", type=Path, default=None,
@@ -377,9 +386,9 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(str(error))
         return 0
     if args.command == "codesign":
-        codesign(args.out, args.steps, args.degree, args.iterations)
+        codesign(args.out, args.steps, args.degree, args.iterations, args.dynamics)
         return 0
-    reproduce(args.out, args.steps, args.degree, args.bisections)
+    reproduce(args.out, args.steps, args.degree, args.bisections, args.dynamics)
     return 0
 
 

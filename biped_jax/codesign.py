@@ -39,6 +39,7 @@ from biped_jax import drives as drive_model
 from biped_jax import gait
 from biped_jax import hybrid_step as hs
 from biped_jax.design import PLANAR_DRIVE_MOUNTS, PLANAR_LINKS, Design
+from biped_jax.gait_solver import stack_tree
 
 #: The paper's drive for the 12 kg robot (Section 2.3): the 42 V RE 25 winding, GP 32 A 66:1, 38 V supply.
 REFERENCE_MOTOR, REFERENCE_GEARHEAD = "RE25-42V", "GP32A-66.22"
@@ -190,7 +191,7 @@ def nearest_gearhead(ratio: float, catalogue: drive_model.Catalogue | None = Non
 
 def stack(designs: list[DriveDesign]) -> DriveDesign:
     """A batch (leading dimension B) of designs."""
-    return jax.tree.map(lambda *leaves: jnp.stack(leaves), *designs)
+    return stack_tree(designs)
 
 
 def unstack(designs: DriveDesign) -> list[DriveDesign]:
@@ -300,14 +301,18 @@ class CoOptimisation:
 
 def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                 iterations: int = 6, max_step: float = 0.25, ratio_bounds=(14.0, 190.0),
+                min_step: float = 0.02,
                 progress: Callable[[str], None] | None = None) -> CoOptimisation:
     """Gear ratios per joint co-optimised with the gait, all designs of the batch at once.
 
     Projected, normalised gradient descent on log N (each joint moves at most ``max_step`` in log N
     per iteration, inside ``ratio_bounds``), the gradient from the envelope theorem at each re-solved
     (warm-started) optimum; a step that raises the Joule energy or loses feasibility is undone and
-    the design's step halved. Gear data follow the ratio smoothly (:func:`with_ratio`); snap the result
-    to the catalogue with :func:`nearest_gearhead` and re-solve to verify.
+    the design's step halved. A design is frozen once its step falls below ``min_step`` (log N) or
+    its gait does not converge; the loop ends early when every design is frozen (the batch keeps its
+    shape, so a frozen design is still solved while others move, but its result is not taken).
+    Gear data follow the ratio smoothly (:func:`with_ratio`); snap the result to the catalogue with
+    :func:`nearest_gearhead` and re-solve to verify.
     """
     say = progress or (lambda message: None)
     gradient = ratio_gradient(solver)
@@ -328,18 +333,21 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
 
     record(theta, solutions)
     for k in range(iterations):
-        converged = np.array([s.status == al.CONVERGED for s in solutions])
+        moving = np.array([s.status == al.CONVERGED for s in solutions]) & (step >= min_step)
+        if not moving.any():
+            say(f"co-design stopped after {k} iterations: every design converged to its step floor or failed")
+            break
         grad = gradient(base, theta, speed, power_limit, step_length, solutions)
         scale = np.maximum(np.max(np.abs(grad), axis=1, keepdims=True), 1e-12)
-        trial = np.where(converged[:, None], np.clip(theta - step[:, None] * grad / scale, low, high), theta)
+        trial = np.where(moving[:, None], np.clip(theta - step[:, None] * grad / scale, low, high), theta)
         x_warm = jnp.stack([jnp.asarray(s.x) for s in solutions])
         trial_solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(trial))), speed, power_limit,
                                         step_length, x0=x_warm, summary=progress)
-        better = np.array([t.status == al.CONVERGED and (s.status != al.CONVERGED or t.cost < s.cost)
-                           for s, t in zip(solutions, trial_solutions)])
+        better = moving & np.array([t.status == al.CONVERGED and t.cost < s.cost
+                                    for s, t in zip(solutions, trial_solutions)])
         theta = np.where(better[:, None], trial, theta)
         solutions = [t if b else s for s, t, b in zip(solutions, trial_solutions, better)]
-        step = np.where(better, step, 0.5 * step)
+        step = np.where(better | ~moving, step, 0.5 * step)
         record(theta, solutions)
         best = min((s.cost for s in solutions if s.status == al.CONVERGED), default=math.nan)
         say(f"co-design iteration {k + 1}/{iterations}: {int(better.sum())} of {len(designs)} designs "

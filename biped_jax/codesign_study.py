@@ -159,7 +159,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
             "snapped": records, "best": best}
 
 
-def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), iterations: int = 5,
+def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dynamics="chain"), iterations: int = 5,
                  progress: Callable[[str], None] | None = None) -> dict:
     """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png."""
     from biped_jax import codesign_plots
@@ -168,7 +168,7 @@ def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), i
     out.mkdir(parents=True, exist_ok=True)
     solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)
     results = {"settings": {"steps": settings.steps, "degree": settings.degree, "batch": BATCH,
-                            "torque_bound_Nm": settings.torque_bound}}
+                            "torque_bound_Nm": settings.torque_bound, "dynamics": settings.dynamics}}
     save = lambda: (out / "codesign.json").write_text(json.dumps(results, indent=2))  # noqa: E731
     say("compiling the gait problem (batch of 16); study (c) from heuristic starts")
     results["pareto"], x_start = pareto(solver, say)

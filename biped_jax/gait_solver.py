@@ -29,6 +29,12 @@ GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-2, max_ou
                                        penalty_initial=10.0, penalty_max=1e6)
 
 
+def stack_tree(trees: list):
+    """A batch (leading dimension B) of pytrees with strong float64 leaves: a weakly typed leaf (from a
+    Python float) would compile a second program."""
+    return jax.tree.map(lambda *leaves: jnp.asarray(jnp.stack(leaves), dtype=jnp.result_type(float)), *trees)
+
+
 @dataclasses.dataclass
 class GaitSolution:
     """One solved (or not) gait problem, with numpy arrays.
@@ -101,9 +107,7 @@ class GaitSolver:
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
         """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts."""
-        # strong float64 leaves: a weakly typed leaf (from a Python float) would compile a second program
-        batch = jax.tree.map(lambda *leaves: jnp.asarray(jnp.stack(leaves), dtype=jnp.result_type(float)),
-                             *models)
+        batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
         result = al.solve(self.problem, x0, batch, self.options, compiled=self.compiled,
                           progress=progress)

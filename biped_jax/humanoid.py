@@ -105,9 +105,10 @@ class GaitReference:
 
 
 def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
-                   trajectory: gait.GaitTrajectory) -> GaitReference:
-    """The reference of a solved step (decision vector ``x``, its ``trajectory``); raises ValueError if the
-    stance angle does not advance monotonically (then it cannot phase the gait)."""
+                   trajectory: gait.GaitTrajectory, mass_class: str = "12kg") -> GaitReference:
+    """The reference of a solved step (decision vector ``x``, its ``trajectory``, solved for the planar
+    biped of ``mass_class``); raises ValueError if the stance angle does not advance monotonically
+    (then it cannot phase the gait)."""
     x = np.asarray(x)
     phase = np.linspace(0.0, 1.0, PHASE_SAMPLES)
     coefficients = np.asarray(gait.bezier_coefficients(jnp.asarray(x), settings))
@@ -119,7 +120,7 @@ def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
         raise ValueError(f"the stance angle of this gait does not increase monotonically "
                          f"(from {theta[0]:.3f} to {theta[-1]:.3f} rad): it cannot phase the replay")
     rate = np.asarray(trajectory.qd)[:, 0] * step_time
-    joints = joints + clearance_offset(model, np.asarray(trajectory.q), grid, phase)
+    joints = joints + clearance_offset(model, np.asarray(trajectory.q), grid, phase, mass_class)
     joint_slope = np.gradient(joints, phase, axis=0)
     # the optimiser holds u_k over [t_k, t_k+1): sample that zero-order hold
     u = np.asarray(trajectory.u)
@@ -131,12 +132,14 @@ def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
                          speed=jnp.asarray(float(model.speed)))
 
 
-def clearance_offset(model: gait.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray) -> np.ndarray:
+def clearance_offset(model: gait.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray,
+                     mass_class: str = "12kg") -> np.ndarray:
     """Offsets of (H1, K1, H2, K2), shape (S, 4), rad, that lift the swing foot to at least the clearance
     profile where the optimal step (its states ``q`` (T + 1, 5) at phases ``grid``) runs lower, without
     moving it forward: a damped least-squares step (:data:`CLEARANCE_DAMPING`) on the swing foot's (x, z)
-    Jacobian with respect to (hip2, knee2), which is singular with a straight swing leg."""
-    biped = hs.with_design(hs.load_planar_biped("12kg"), model.design)
+    Jacobian with respect to (hip2, knee2), which is singular with a straight swing leg. The geometry is
+    that of ``mass_class``'s planar biped; the masses are the gait's design."""
+    biped = hs.with_design(hs.load_planar_biped(mass_class), model.design)
     states = jnp.asarray(np.column_stack([np.interp(phase, grid, q[:, k]) for k in range(q.shape[1])]))
     foot = lambda q_: hs.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
     jacobians = np.asarray(jax.vmap(jax.jacfwd(foot))(states))[:, :, 3:5]
@@ -322,6 +325,12 @@ class Replay:
     foot_force: jax.Array
 
 
+def contact_model(mass_class: str = "12kg") -> tuple[mujoco.MjModel, "Layout"]:
+    """The planarised humanoid the replay simulates (MuJoCo C model) and where its joints are."""
+    mj_model, layout, _ = _chunk_program(mass_class)
+    return mj_model, layout
+
+
 @functools.lru_cache(maxsize=None)
 def _chunk_program(mass_class: str):
     """One compiled call that advances :data:`CHUNK` physics steps (cached per mass class)."""
@@ -438,11 +447,9 @@ def rigid_impact(mj_model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, qve
     jac = np.zeros((3, mj_model.nv))
     mujoco.mj_jacSite(mj_model, data, jac, None, layout.foot_site[1 - stance])
     columns = sagittal_columns(layout, stance)
-    m, j = mass[np.ix_(columns, columns)], jac[[0, 2]][:, columns]
-    kkt = np.block([[m, -j.T], [j, np.zeros((2, 2))]])
     before = qvel[columns]
-    solution = np.linalg.solve(kkt, np.concatenate([m @ before, np.zeros(2)]))
-    return solution[:7] - before, solution[7:]
+    after, impulse = hs.inelastic_impact(mass[np.ix_(columns, columns)], jac[[0, 2]][:, columns], before, xp=np)
+    return after - before, impulse
 
 
 def compare_touchdowns(run: Replay, mj_model: mujoco.MjModel, layout: Layout) -> list[dict]:

@@ -121,10 +121,10 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
         say(f"warning: the {name} gait did not converge ({status}); replaying it anyway")
     biped = hs.load_planar_biped(mass_class)
     trajectory = jax.jit(lambda x_, m: gait.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
-    reference = humanoid.gait_reference(x, model, settings, trajectory)
+    reference = humanoid.gait_reference(x, model, settings, trajectory, mass_class)
     say(f"compiling the humanoid's contact simulation and walking {steps} steps")
     run = humanoid.replay(reference, mass_class, steps, progress=say)
-    mj_model, layout, _ = humanoid._chunk_program(mass_class)
+    mj_model, layout = humanoid.contact_model(mass_class)
     report = humanoid.walk_report(run, mj_model, layout, reference, humanoid.DEFAULT_GAINS)
     report.update({"model": name, "mass_class": mass_class, "gait_status": status,
                    "gait_settings": {"steps": settings.steps, "degree": settings.degree},

@@ -310,11 +310,20 @@ def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Arra
     Returns:
       (qd+ shape (7,), Lambda = ground impulse on foot 2 (x, z), shape (2,), N s).
     """
-    mass = mass_matrix(floating, qf)
-    jac = foot_jacobian(floating, qf, "foot2")
-    kkt = jnp.block([[mass, -jac.T], [jac, jnp.zeros((2, 2), qf.dtype)]])
-    solution = jnp.linalg.solve(kkt, jnp.concatenate([mass @ qfd_before, jnp.zeros(2, qf.dtype)]))
-    return solution[:N_FLOATING], solution[N_FLOATING:]
+    return inelastic_impact(mass_matrix(floating, qf), foot_jacobian(floating, qf, "foot2"), qfd_before)
+
+
+def inelastic_impact(mass, jac, qd_before, xp=jnp):
+    """Velocity after, and impulse of, a perfectly inelastic impact that stops a point.
+
+    Solves the KKT system M (qd+ - qd-) = J^T Lambda, J qd+ = 0. mass (n, n), jac (k, n) (the point's
+    rows, e.g. (x, z)), qd_before (n,); ``xp`` is ``jax.numpy`` or ``numpy``. Returns (qd+ (n,),
+    Lambda (k,)).
+    """
+    n, k = mass.shape[0], jac.shape[0]
+    kkt = xp.block([[mass, -jac.T], [jac, xp.zeros((k, k), mass.dtype)]])
+    solution = xp.linalg.solve(kkt, xp.concatenate([mass @ qd_before, xp.zeros(k, mass.dtype)]))
+    return solution[:n], solution[n:]
 
 
 def touchdown(biped: PlanarBiped, q: jax.Array, qd: jax.Array) -> Touchdown:

@@ -54,11 +54,13 @@ def test_models_command_lists_every_model(capsys):
 
 @pytest.mark.slow
 def test_reproduce_writes_the_study(tmp_path):
-    """The main job at a short horizon (the compiled program is shared with tests/test_gait.py through
-    JAX's persistent cache): files exist and results.json is consistent with itself."""
+    """The main job at a short horizon with the planar-chain dynamics (equal to MJX's,
+    tests/test_planar_chain.py; several times faster): files exist and results.json is consistent
+    with itself."""
     assert cli.main(["reproduce", "--out", str(tmp_path), "--steps", "20", "--degree", "5",
-                     "--bisections", "1"]) == 0
+                     "--bisections", "1", "--dynamics", "chain"]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
+    assert results["settings"]["dynamics"] == "chain"
     assert [m["model"] for m in results["models"]] == ["M1", "M2", "M3", "M4"]
     for record in results["models"]:
         assert record["status"] == "converged"

@@ -1,0 +1,117 @@
+"""The closed-form planar-chain dynamics against MJX: every quantity at random states of a design with
+armature and damping, a rollout and its gradient, the gait rollout both ways, and bad models."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax import gait, planar_chain
+from biped_jax import hybrid_step as hs
+
+mjx = hs.mjx
+SITES = ("foot1", "knee1", "hip", "knee2", "foot2")
+
+
+@pytest.fixture(scope="module")
+def designed(biped12):
+    """The pinned 12 kg biped with a design unlike the file's: other masses, drive masses at the
+    joints, armature and damping, so every parameter path is exercised."""
+    design = hs.planar_design("12kg")
+    design = dataclasses.replace(design, link_mass=design.link_mass * jnp.array([0.8, 1.1, 1.3, 0.9, 1.2]),
+                                 joint_armature=jnp.array([0.01, 0.02, 0.015, 0.03]),
+                                 joint_damping=jnp.array([0.1, 0.2, 0.3, 0.4]),
+                                 drive_mass=jnp.array([0.3, 0.2, 0.3, 0.2]))
+    return hs.with_design(biped12, design).pinned
+
+
+def test_structure_of_the_pinned_biped(biped12):
+    chain = planar_chain.PlanarChain.from_model(biped12.pinned)
+    np.testing.assert_array_equal(chain.actuated_dof, gait.ACTUATED_INDEX)  # (H1, K1, H2, K2)
+    np.testing.assert_array_equal(chain.parent, [-1, 0, 1, 2, 3])
+    assert chain.site_body == {"foot1": 0, "knee1": 1, "hip": 2, "knee2": 4, "foot2": 4}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_every_quantity_equals_mjx(biped12, designed, seed):
+    chain = planar_chain.PlanarChain.from_model(biped12.pinned)
+    rng = np.random.default_rng(seed)
+    q, qd, u = (jnp.asarray(rng.normal(size=5)), jnp.asarray(3 * rng.normal(size=5)),
+                jnp.asarray(5 * rng.normal(size=4)))
+    data = mjx.forward(designed, mjx.make_data(designed).replace(qpos=q, qvel=qd, ctrl=u))
+    qdd, state = planar_chain.forward_dynamics(chain, designed, q, qd, u)
+    np.testing.assert_allclose(planar_chain.mass_matrix(chain, designed, state), mjx.full_m(designed, data),
+                               atol=1e-12)
+    np.testing.assert_allclose(planar_chain.bias_force(chain, designed, state, qd),
+                               data.qfrc_bias - data.qfrc_passive, atol=1e-10)
+    # MJX's Euler integrates damping implicitly; its forward pass's qacc is the explicit one
+    np.testing.assert_allclose(qdd, data.qacc, rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(planar_chain.root_force(chain, designed, state, qdd),
+                               hs._stance_force(designed, data), atol=1e-9)
+    site_ids = [mjx.name2id(designed, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name) for name in SITES]
+    np.testing.assert_allclose(planar_chain.site_positions(chain, designed, state, SITES),
+                               data.site_xpos[jnp.array(site_ids)][:, jnp.array([0, 2])], atol=1e-14)
+
+
+def test_rollout_and_its_gradient_equal_mjx(biped12, rollout):
+    """20 Euler steps of 1.8 ms (no damping: MJX's implicit damping would differ by O(dt^2)), and the
+    gradient of a cost of the final state and the ground force with respect to the torques."""
+    chain = planar_chain.PlanarChain.from_model(biped12.pinned)
+    pinned = hs.with_timestep(biped12.pinned, 1.8e-3)
+    q0 = jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0])
+    qd0 = jnp.array([2.5, 0.0, 2.5, -4.0, 0.0])
+    controls = jnp.asarray(np.random.default_rng(3).normal(size=(20, 4)))
+
+    def cost(u, simulate):
+        q, qd, force = simulate(u)
+        return jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + 1e-4 * jnp.sum(force[:, 1] ** 2)
+
+    def with_chain(u):
+        q, qd, _, force = planar_chain.stance_rollout(chain, pinned, q0, qd0, u)
+        return q, qd, force
+
+    def with_mjx(u):
+        trajectory = rollout(pinned, q0, qd0, u)
+        return trajectory.q, trajectory.qd, trajectory.ground_force
+
+    np.testing.assert_allclose(with_chain(controls)[0], with_mjx(controls)[0], atol=1e-12)
+    np.testing.assert_allclose(with_chain(controls)[2], with_mjx(controls)[2], atol=1e-9)
+    gradient_chain = jax.grad(cost)(controls, with_chain)
+    gradient_mjx = jax.grad(cost)(controls, with_mjx)
+    np.testing.assert_allclose(gradient_chain, gradient_mjx, rtol=1e-9, atol=1e-10)
+
+
+def test_gait_rollout_is_the_same_with_either_dynamics(biped12):
+    """The optimiser's rollout (feedback inside, 20 steps) from M2's heuristic start: same torques,
+    states, ground force and touchdown with the chain as with MJX."""
+    model = gait.gait_model("12kg", 0.555, 20.0)
+    trajectories = {}
+    for dynamics in gait.DYNAMICS:
+        settings = gait.GaitSettings(steps=20, degree=5, dynamics=dynamics)
+        x = gait.initial_guess(model, settings)
+        trajectories[dynamics] = gait.simulate(x, model, biped12, settings)
+    chain, reference = trajectories["chain"], trajectories["mjx"]
+    for field in ("q", "qd", "u", "ground_force", "swing_foot", "heights"):
+        np.testing.assert_allclose(getattr(chain, field), getattr(reference, field), rtol=1e-9, atol=1e-9,
+                                   err_msg=field)
+    np.testing.assert_allclose(chain.touchdown.impulse, reference.touchdown.impulse, atol=1e-9)
+
+
+def test_unknown_dynamics_is_rejected():
+    from biped_jax import cli
+    assert cli.DYNAMICS == gait.DYNAMICS  # the command line's choices
+    with pytest.raises(ValueError, match="dynamics must be one of .* got 'rk4'"):
+        gait.GaitSettings(dynamics="rk4")
+    with pytest.raises(SystemExit):
+        cli.main(["codesign", "--dynamics", "rk4"])
+
+
+def test_a_model_that_is_not_a_planar_chain_is_rejected(biped12):
+    """The floating biped's root is a slide pair: not a hinge chain."""
+    with pytest.raises(ValueError, match="one hinge per body"):
+        planar_chain.PlanarChain.from_model(biped12.floating)
+    tilted = biped12.pinned.replace(jnt_axis=biped12.pinned.jnt_axis.at[2].set(jnp.array([1.0, 0.0, 0.0])))
+    with pytest.raises(ValueError, match="about \\+-y"):
+        planar_chain.PlanarChain.from_model(tilted)
