@@ -301,7 +301,7 @@ class CoOptimisation:
 
 def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                 iterations: int = 6, max_step: float = 0.25, ratio_bounds=(14.0, 190.0),
-                min_step: float = 0.02,
+                min_step: float = 0.02, solutions: list | None = None,
                 progress: Callable[[str], None] | None = None) -> CoOptimisation:
     """Gear ratios per joint co-optimised with the gait, all designs of the batch at once.
 
@@ -312,7 +312,8 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     its gait does not converge; the loop ends early when every design is frozen (the batch keeps its
     shape, so a frozen design is still solved while others move, but its result is not taken).
     Gear data follow the ratio smoothly (:func:`with_ratio`); snap the result to the catalogue with
-    :func:`nearest_gearhead` and re-solve to verify.
+    :func:`nearest_gearhead` and re-solve to verify. ``solutions``: the designs' gaits if already solved
+    (e.g. by :func:`solve_designs`), else they are solved first.
     """
     say = progress or (lambda message: None)
     gradient = ratio_gradient(solver)
@@ -322,8 +323,11 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     low, high = np.log(ratio_bounds[0]), np.log(ratio_bounds[1])
     step = np.full(len(designs), max_step)
     apply = jax.jit(jax.vmap(lambda d, t: with_ratio(d, t, catalogue)))
-    solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(theta))), speed, power_limit,
-                              step_length, x0=x0, summary=progress)
+    if solutions is None:
+        solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(theta))), speed, power_limit,
+                                  step_length, x0=x0, summary=progress)
+    elif len(solutions) != len(designs):
+        raise ValueError(f"give one solution per design: {len(solutions)} for {len(designs)} designs")
     path = CoOptimisation([], [], [], [], [])
 
     def record(theta_, solutions_):

@@ -121,3 +121,28 @@ def test_gradient_of_the_optimal_joule_energy_matches_re_solved_optima(short_sol
     finite_difference = (solutions[2].cost - solutions[0].cost) / (2 * LOG_STEP)
     assert per_joint[1].sum() == pytest.approx(finite_difference, rel=2e-3)
     np.testing.assert_allclose(per_joint[3], per_joint[1], rtol=1e-12)
+
+
+def test_co_optimisation_lowers_the_joule_energy_and_stops_when_every_design_is_frozen(
+        short_solver, ratio_batch, paper_solutions):
+    """One iteration from the batch's four designs: no design's optimum gets dearer (a worse trial is
+    undone), the ones that move go to higher ratios (the sign of the gradient at 66:1, where the
+    current per joint torque falls as 1/N), and the path records both iterates. With a step floor above
+    the step, every design is frozen at once: no trial is solved."""
+    designs, _, solutions = ratio_batch
+    x0 = np.tile(paper_solutions[1].x, (4, 1))
+    messages = []
+    path = codesign.co_optimise(short_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=1,
+                                max_step=0.1, solutions=solutions, progress=messages.append)
+    assert len(path.ratios) == len(path.joule) == 2
+    before, after = np.array(path.joule[0]), np.array(path.joule[1])
+    np.testing.assert_allclose(before, [s.cost for s in solutions], rtol=1e-12)
+    assert np.all(after <= before) and np.any(after < before)
+    moved = np.array(path.ratios[1]) != np.array(path.ratios[0])
+    assert np.all(np.array(path.ratios[1])[moved] > np.array(path.ratios[0])[moved])
+    assert [s.cost for s in path.solutions] == list(after)
+    frozen = codesign.co_optimise(short_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=3,
+                                  max_step=0.1, min_step=1.0, solutions=solutions, progress=messages.append)
+    assert len(frozen.ratios) == 1 and "stopped after 0 iterations" in messages[-1]
+    with pytest.raises(ValueError, match="one solution per design: 3 for 4"):
+        codesign.co_optimise(short_solver, designs, SPEED, POWER_LIMIT, solutions=solutions[:3])
