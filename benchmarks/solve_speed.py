@@ -19,6 +19,9 @@ def main():
     parser.add_argument("--steps", type=int, default=60)
     parser.add_argument("--degree", type=int, default=6)
     parser.add_argument("--cache", type=Path, default=None, help="use this persistent cache folder")
+    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="mjx",
+                        help="single-support dynamics of the rollout (default mjx)")
+    parser.add_argument("--name", default="solve_speed", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
@@ -29,7 +32,7 @@ def main():
     from biped_jax import gait, study
     from biped_jax.gait_solver import GaitSolver
 
-    settings = gait.GaitSettings(steps=args.steps, degree=args.degree)
+    settings = gait.GaitSettings(steps=args.steps, degree=args.degree, dynamics=args.dynamics)
     rows = []
 
     def record(label, started, solutions):
@@ -55,7 +58,7 @@ def main():
     started = time.perf_counter()
     record("M1-M4 batch warm (compiled)", started, solver.solve(names, models))
 
-    save_results("solve_speed", {"steps": args.steps, "degree": args.degree,
+    save_results(args.name, {"steps": args.steps, "degree": args.degree, "dynamics": args.dynamics,
                                  "persistent_cache": bool(args.cache)}, rows, args.out)
 
 

@@ -216,6 +216,13 @@ def donald_walk(out: Path, steps: int, faster: bool = False) -> dict:
         result = report["optimisation"]
         console.print(f"optimiser: {result['status']}, speed over steps 2-3 {result['default_speed_mps']:.4f} -> "
                       f"{result['speed_mps']:.4f} m/s, largest scaled violation {result['max_scaled_violation']:.1e}")
+        chosen = report["candidates"][report["chosen_candidate"]]
+        console.print(f"walked with the full contact solver: {sum(c['verified'] for c in report['candidates'])} of "
+                      f"{len(report['candidates'])} candidates verified (margin >= "
+                      f"{1e3 * donald_study.VERIFIED_MARGIN:.0f} mm, no fall); chosen: "
+                      + ("the default gait" if report["chosen_candidate"] == 0
+                         else f"outer iterate {report['chosen_candidate']}")
+                      + f", {chosen['speed_mps']:.4f} m/s ({report['speed_gain_mps']:+.4f} m/s over the default)")
     verdict = "fell" if report["fell"] else "did not fall"
     console.print(f"DONALD: {report['steps']} touchdowns, {report['distance_m']:.3f} m forward at "
                   f"{report['speed_mps']:.4f} m/s, {verdict}; smallest static-stability margin in single "

@@ -130,7 +130,13 @@ def optimise(options: al.SolverOptions = SPEED_SOLVER_OPTIONS,
     result = al.solve(problem, z0, jnp.zeros(1), options, progress=progress)
     start_speed = -float(jax.jit(evaluate)(z0[0], None)[0]) * 0.01
     z = jnp.asarray(result.x[0])
+    as_gait = lambda z_: {name: float(getattr(gait_from_vector(jnp.asarray(z_)), name))  # noqa: E731
+                          for name in PARAMETERS}
     return {"status": result.status[0], "speed_mps": -float(result.cost[0]) * 0.01,
             "default_speed_mps": start_speed, "max_scaled_violation": float(result.violation[0]),
-            "gait": {name: float(getattr(gait_from_vector(z), name)) for name in PARAMETERS},
+            "gait": as_gait(z),
+            # every outer iterate, so a caller can walk them all and keep the best verified one
+            "iterates": [{"outer_iteration": k + 1, "speed_mps": -0.01 * float(row["cost"][0]),
+                          "max_scaled_violation": float(row["violation"][0]), "gait": as_gait(row["x"][0])}
+                         for k, row in enumerate(result.history)],
             "gradients": int(result.gradients[0]), "wall_time_s": result.wall_time_s}

@@ -128,3 +128,21 @@ def test_default_gait_is_feasible_for_the_speed_optimisation():
     speed = (np.interp(end, t, com_x) - np.interp(start, t, com_x)) / (end - start)
     assert -0.01 * float(objective) == pytest.approx(speed, rel=1e-9)
     assert speed > 0.01
+
+
+@pytest.mark.parametrize("changes, verified", [
+    ({}, True),
+    ({"fell": True}, False),
+    ({"steps": 5}, False),  # a step short
+    ({"min_support_margin_m": 0.004}, False),  # under the 5 mm verification margin
+    ({"min_support_margin_m": float("nan")}, False),  # never in single support
+])
+def test_a_faster_gait_counts_only_when_the_full_solver_walks_it(changes, verified):
+    report = {"fell": False, "steps": 6, "min_support_margin_m": 0.02} | changes
+    assert donald_study.is_verified(report, steps=6) is verified
+
+
+def test_a_walk_shorter_than_its_gait_is_rejected():
+    needed = donald_study.walk_duration(donald.DEFAULT_GAIT, 2)
+    with pytest.raises(ValueError, match="shorter than the gait's 2 steps"):
+        donald_study.walk(2, duration=needed - 0.5)
