@@ -39,7 +39,7 @@ class PlanarChain:
       parent: (n,), index of each body's parent body (-1: the world).
       axis_sign: (n,), the y component (+-1) of each body's hinge axis.
       actuated_dof: (n_actuators,), the dof each actuator drives (gear 1).
-      site_body: name -> body index of each site.
+      site_body: name -> body index of each site. site_index: name -> the model's site id.
     """
 
     ancestors: np.ndarray
@@ -47,6 +47,7 @@ class PlanarChain:
     axis_sign: np.ndarray
     actuated_dof: np.ndarray
     site_body: dict
+    site_index: dict
 
     @property
     def size(self) -> int:
@@ -86,16 +87,12 @@ class PlanarChain:
         gear = np.asarray(model.actuator_gear)
         if not np.allclose(gear[:, 0], 1.0) or not np.allclose(gear[:, 1:], 0.0):
             raise ValueError("actuators must drive their joints with gear 1")
-        sites = {mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SITE, k) if isinstance(model, mujoco.MjModel)
-                 else _site_name(model, k): int(np.asarray(model.site_bodyid)[k]) - 1
-                 for k in range(int(model.nsite))}
+        names = [bytes(model.names[int(model.name_siteadr[k]):]).split(b"\0", 1)[0].decode()
+                 for k in range(int(model.nsite))]
         return cls(ancestors=ancestors, parent=parent, axis_sign=np.sign(axis[:, 1]),
-                   actuated_dof=np.asarray(model.jnt_dofadr)[trnid], site_body=sites)
-
-
-def _site_name(model, k: int) -> str:
-    start = int(model.name_siteadr[k])
-    return bytes(model.names[start:]).split(b"\0", 1)[0].decode()
+                   actuated_dof=np.asarray(model.jnt_dofadr)[trnid],
+                   site_body={name: int(np.asarray(model.site_bodyid)[k]) - 1 for k, name in enumerate(names)},
+                   site_index={name: k for k, name in enumerate(names)})
 
 
 def _rotate(theta: jax.Array, v: jax.Array) -> jax.Array:
@@ -185,17 +182,12 @@ def root_force(chain: PlanarChain, model, state: ChainState, qdd: jax.Array) -> 
 
 def site_positions(chain: PlanarChain, model, state: ChainState, names) -> jax.Array:
     """World (x, z) of named sites, (len(names), 2), m."""
-    site_ids = [_site_index(model, name) for name in names]
+    unknown = [name for name in names if name not in chain.site_index]
+    if unknown:
+        raise ValueError(f"the chain has no site {unknown[0]!r}")
     bodies = np.array([chain.site_body[name] for name in names])
-    local = _xz(model.site_pos[np.array(site_ids)])
+    local = _xz(model.site_pos[np.array([chain.site_index[name] for name in names])])
     return state.origin[bodies] + _rotate(state.angle[bodies], local)
-
-
-def _site_index(model, name: str) -> int:
-    for k in range(int(model.nsite)):
-        if _site_name(model, k) == name:
-            return k
-    raise ValueError(f"model has no site {name!r}")
 
 
 def actuated_force(chain: PlanarChain, u: jax.Array) -> jax.Array:

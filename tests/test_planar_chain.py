@@ -115,3 +115,7 @@ def test_a_model_that_is_not_a_planar_chain_is_rejected(biped12):
     tilted = biped12.pinned.replace(jnt_axis=biped12.pinned.jnt_axis.at[2].set(jnp.array([1.0, 0.0, 0.0])))
     with pytest.raises(ValueError, match="about \\+-y"):
         planar_chain.PlanarChain.from_model(tilted)
+    chain = planar_chain.PlanarChain.from_model(biped12.pinned)
+    state = planar_chain.kinematics(chain, biped12.pinned, jnp.zeros(5), jnp.zeros(5))
+    with pytest.raises(ValueError, match="no site 'toe'"):
+        planar_chain.site_positions(chain, biped12.pinned, state, ["hip", "toe"])
