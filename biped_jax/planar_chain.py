@@ -203,6 +203,12 @@ def forward_dynamics(chain: PlanarChain, model, q, qd, u) -> tuple[jax.Array, Ch
     return qdd, state
 
 
+def euler(q: jax.Array, qd: jax.Array, qdd: jax.Array, dt) -> tuple[jax.Array, jax.Array]:
+    """Semi-implicit Euler, as MJX's ``euler``: the rates first, then the angles with the new rates."""
+    qd_next = qd + dt * qdd
+    return q + dt * qd_next, qd_next
+
+
 def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, controls: jax.Array):
     """Single support under zero-order-hold torques, semi-implicit Euler as MJX's ``euler`` with
     ``model.opt.timestep`` (explicit damping: MJX's with ``EULERDAMP`` disabled, identical without
@@ -215,8 +221,7 @@ def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, con
         q, qd = state
         qdd, kin = forward_dynamics(chain, model, q, qd, u)
         force = root_force(chain, model, kin, qdd)
-        qd_next = qd + dt * qdd
-        q_next = q + dt * qd_next
+        q_next, qd_next = euler(q, qd, qdd, dt)
         return (q_next, qd_next), (q_next, qd_next, qdd, force)
 
     _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
