@@ -307,9 +307,9 @@ def main(argv: list[str] | None = None) -> int:
     walker.add_argument("--steps", type=int, default=8, help="steps to walk (default 8)")
     walker.add_argument("--faster", action="store_true",
                         help="first optimise the gait for speed (tens of minutes), then walk the optimum")
-    replay = commands.add_parser("humanoid", help="experimental: the optimal sagittal gait replayed on the "
-                                 "16-DoF humanoid under contact in MJX (figures, JSON; it falls within two "
-                                 "steps so far, see README)")
+    replay = commands.add_parser("humanoid", help="the optimal sagittal gait replayed on the 16-DoF humanoid "
+                                 "under contact in MJX (figures, JSON; it walks slower than the gait, see "
+                                 "README)")
     replay.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     replay.add_argument("--model", default="M2", help="which of the paper's models M1-M4 (default M2)")
     replay.add_argument("--steps", type=int, default=10, help="steps to walk (default 10)")

@@ -9,7 +9,7 @@ feed-forward torques from the optimiser plus PD on the optimal joint paths.
 The reference is phased by the stance leg's absolute angle theta (the optimiser's unactuated
 coordinate), not by time: the joints track b(s(theta)), the hybrid-zero-dynamics form of the gait
 (Westervelt et al. 2003), so a late or early step does not drag the swing leg off its path. The
-support switches when the swing foot touches the ground in the second half of the step.
+support switches when the swing foot's ground force rises in the second half of the step.
 
 Coordinates of the planarised model: qpos = (x, z, pitch, 16 joints); x, z the hip centre (the torso
 frame) in metres, pitch about +y in rad, as in the floating planar model. Leg "l" is the planar
@@ -57,8 +57,11 @@ OFFSET_FADE = 0.2
 FOOT_SOLREF = (0.004, 1.0)
 FOOT_SOLIMP = (0.95, 0.99, 0.001, 0.5, 2.0)
 IMPRATIO = 10.0
-#: The swing foot counts as landed below this height in the second half of the step, m.
-TOUCHDOWN_HEIGHT = 0.0
+#: The swing foot counts as landed when its ground force exceeds this in the second half of the step, N.
+#: (Not a height: the sphere's lowest point lies below the shank end when the shank is tilted, 0.45 mm at
+#: the 0.3 rad of touchdown, so a loaded foot's site can stay above the ground and a height test miss the
+#: touchdown; measured.)
+TOUCHDOWN_FORCE = 1.0
 #: The robot has fallen when the hips drop below this height, m, or the torso pitches beyond 1 rad.
 FALL_HEIGHT = 0.15
 
@@ -257,15 +260,14 @@ class Support:
     offset: jax.Array
 
 
-def phase_of(reference: GaitReference, support: Support, theta, theta_dot):
-    """(s, ds/dt): theta mapped linearly from [theta at touchdown, theta at the optimal step's end] onto
-    the optimal step's [theta_0, theta_end], then through theta(s) (hybrid-zero-dynamics phasing that
+def phase_of(reference: GaitReference, support: Support, theta):
+    """s: theta mapped linearly from [theta at touchdown, theta at the optimal step's end] onto the
+    optimal step's [theta_0, theta_end], then through theta(s) (hybrid-zero-dynamics phasing that
     re-normalises every step, so a short or long step starts at s = 0)."""
     start, end = reference.stance_angle[0], reference.stance_angle[-1]
     stretch = (end - start) / (end - support.stance_angle)
     equivalent = start + (theta - support.stance_angle) * stretch
-    phase = jnp.clip(jnp.interp(equivalent, reference.stance_angle, reference.phase), 0.0, 1.0)
-    return phase, theta_dot * stretch / jnp.interp(phase, reference.phase, reference.stance_angle_slope)
+    return jnp.clip(jnp.interp(equivalent, reference.stance_angle, reference.phase), 0.0, 1.0)
 
 
 def after_touchdown(layout: Layout, reference: GaitReference, qpos, qvel, stance) -> Support:
@@ -281,10 +283,14 @@ def control(layout: Layout, reference: GaitReference, gains: Gains, qpos, qvel, 
     dampers, see :func:`with_gains`), shape (16,), N m; the phase s; the reference (H1, K1, H2, K2), rad.
 
     Law: u = u_ff(s) + K_p (q_ref(s) - q) + K_d (qdot_ref - qdot), the - K_d qdot part acting as joint
-    damping; q_ref = b(s) + (1 - s / OFFSET_FADE)^3 offset for s < OFFSET_FADE, else b(s).
+    damping; q_ref = b(s) + (1 - s / OFFSET_FADE)^3 offset for s < OFFSET_FADE, else b(s); qdot_ref =
+    d q_ref / d s at the nominal pace ds/dt = 1 / t_f.
     """
-    theta, theta_dot, joints, _, _ = sagittal_state(layout, qpos, qvel, support.stance)
-    phase, phase_rate = phase_of(reference, support, theta, theta_dot)
+    theta, _, joints, _, _ = sagittal_state(layout, qpos, qvel, support.stance)
+    phase = phase_of(reference, support, theta)
+    # the reference's rate at the nominal pace: a rate from the measured theta_dot would feed the stance
+    # leg's joint rates back explicitly through the gains (unstable at 1 ms late in the step, measured)
+    phase_rate = 1.0 / reference.step_time
     fade = jnp.maximum(1.0 - phase / OFFSET_FADE, 0.0)
     target = _interp(phase, reference.phase, reference.joints) + fade**3 * support.offset
     target_rate = (_interp(phase, reference.phase, reference.joint_slope)
@@ -348,7 +354,7 @@ def _chunk_program(mass_class: str):
         force = mjx.rne_postconstraint(model, data)._impl.cfrc_ext[foot_body, 3:]
         data = mjx.euler(model, data)
         feet = data.site_xpos[foot_site]
-        landed = (feet[1 - stance, 2] <= TOUCHDOWN_HEIGHT) & (phase > 0.5)
+        landed = (force[1 - stance, 2] > TOUCHDOWN_FORCE) & (phase > 0.5)
         switched = after_touchdown(layout, reference, data.qpos, data.qvel, 1 - stance)
         support = jax.tree.map(lambda new, old: jnp.where(landed, new, old), switched, support)
         sample = Replay(t=data.time, qpos=data.qpos, qvel=data.qvel, ctrl=ctrl, stance=stance, phase=phase,
