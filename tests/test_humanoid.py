@@ -127,3 +127,31 @@ def test_bad_input_is_rejected(m2_reference, paper_solutions):
     model = gait.gait_model("12kg", solution.speed_mps, solution.power_limit_W)
     with pytest.raises(ValueError, match="monotonically"):
         humanoid.gait_reference(solution.x, model, gait.GaitSettings(steps=20, degree=5), solution.trajectory)
+
+
+def test_control_law_is_feed_forward_plus_pd_on_the_phased_reference(m2_reference, planarised):
+    """At the step's start the law gives u_ff + K_d qdot_ref (joints on the reference), the reference's
+    rate at the nominal pace whatever the measured rates (the - K_d qdot part is the model's joint
+    damping), and - K_p per radian of a swing-knee error (which leaves the phase alone)."""
+    *_, reference = m2_reference
+    model, layout = planarised
+    gains = humanoid.DEFAULT_GAINS
+    qpos, qvel = humanoid.initial_state(model, layout, reference, "12kg")
+    support = humanoid.Support(stance=jnp.asarray(0), stance_angle=reference.stance_angle[0], offset=jnp.zeros(4))
+    law = jax.jit(lambda q, v: humanoid.control(layout, reference, gains, q, v, support))
+    u, phase, target = (np.asarray(a) for a in law(qpos, qvel))
+    actuators = [layout.actuator_hip[0], layout.actuator_knee[0], layout.actuator_hip[1], layout.actuator_knee[1]]
+    assert float(phase) == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(target, np.asarray(reference.joints[0]), atol=1e-9)
+    expected = (np.asarray(reference.torque[0])
+                + gains.sagittal_damping * np.asarray(reference.joint_slope[0]) / float(reference.step_time)
+                + gains.sagittal_stiffness * (target - qpos[[layout.hip[0], layout.knee[0], layout.hip[1],
+                                                            layout.knee[1]]]))
+    np.testing.assert_allclose(u[actuators], expected, rtol=1e-9, atol=1e-9)
+    assert np.count_nonzero(np.delete(u, actuators)) == 0
+    rates = qvel + np.random.default_rng(0).normal(0.0, 1.0, qvel.shape)
+    np.testing.assert_allclose(np.asarray(law(qpos, rates)[0]), u, atol=1e-12)
+    bent = qpos.copy()
+    bent[layout.knee[1]] += 0.01
+    change = np.asarray(law(bent, qvel)[0]) - u
+    np.testing.assert_allclose(change[actuators], [0.0, 0.0, 0.0, -0.01 * gains.sagittal_stiffness], atol=1e-9)
