@@ -195,6 +195,16 @@ class Layout:
     foot_site: tuple[int, int]
     foot_body: tuple[int, int]
 
+    @property
+    def sagittal_q(self) -> list[int]:
+        """qpos/qvel indices of (hip l, knee l, hip r, knee r): (H1, K1, H2, K2) with leg l standing."""
+        return [self.hip[0], self.knee[0], self.hip[1], self.knee[1]]
+
+    @property
+    def sagittal_actuators(self) -> list[int]:
+        """Actuator indices of (hip l, knee l, hip r, knee r)."""
+        return [self.actuator_hip[0], self.actuator_knee[0], self.actuator_hip[1], self.actuator_knee[1]]
+
     @classmethod
     def of(cls, model: mujoco.MjModel) -> "Layout":
         joint = lambda name: int(model.joint(name).qposadr[0])  # noqa: E731 (hinges: qpos = dof index + 0)
@@ -380,7 +390,7 @@ def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitRefer
     pinned = hs.load_planar_biped(mass_class).pinned
     qf, qfd = (np.asarray(a) for a in hs.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
     qpos, qvel = np.zeros(mj_model.nq), np.zeros(mj_model.nv)
-    columns = [0, 1, 2, layout.hip[0], layout.knee[0], layout.hip[1], layout.knee[1]]
+    columns = sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd
     return qpos, qvel
 
@@ -519,7 +529,7 @@ def walk_report(run: Replay, mj_model: mujoco.MjModel, layout: Layout, reference
     duration = float(run.t[-1])
     distance = float(run.qpos[-1, 0] - run.qpos[0, 0])
     walked = float(run.t[touchdowns[-1]]) if len(touchdowns) else duration
-    sagittal = [layout.actuator_hip[0], layout.actuator_knee[0], layout.actuator_hip[1], layout.actuator_knee[1]]
+    sagittal = layout.sagittal_actuators
     names = ("hip_pitch_l", "knee_l", "hip_pitch_r", "knee_r")
     torque = applied_torque(run, layout, gains)
     return {

@@ -133,10 +133,8 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
     com = centre_of_mass(mj_model, run.qpos)
     plot_walk(run, com, out / "humanoid_walk.png")
     plot_tracking(run, out / "humanoid_tracking.png")
-    columns = [layout.hip[0], layout.knee[0], layout.hip[1], layout.knee[1]]
-    actuators = [layout.actuator_hip[0], layout.actuator_knee[0], layout.actuator_hip[1], layout.actuator_knee[1]]
-    torque = humanoid.applied_torque(run, layout, humanoid.DEFAULT_GAINS)[:, actuators]
-    workspace = drive_selection.JointWorkspace(t=run.t, speed=run.qvel[:, columns], torque=torque,
+    torque = humanoid.applied_torque(run, layout, humanoid.DEFAULT_GAINS)[:, layout.sagittal_actuators]
+    workspace = drive_selection.JointWorkspace(t=run.t, speed=run.qvel[:, layout.sagittal_q], torque=torque,
                                                step_time=float(run.t[-1]))  # the whole walk: no window
     winding, ratio = PAPER_DRIVE
     drive_selection.plot_motor_workspace(workspace, drives.load_catalogue(), (ratio,), f"humanoid replay of {name}",

@@ -140,13 +140,12 @@ def test_control_law_is_feed_forward_plus_pd_on_the_phased_reference(m2_referenc
     support = humanoid.Support(stance=jnp.asarray(0), stance_angle=reference.stance_angle[0], offset=jnp.zeros(4))
     law = jax.jit(lambda q, v: humanoid.control(layout, reference, gains, q, v, support))
     u, phase, target = (np.asarray(a) for a in law(qpos, qvel))
-    actuators = [layout.actuator_hip[0], layout.actuator_knee[0], layout.actuator_hip[1], layout.actuator_knee[1]]
+    actuators = layout.sagittal_actuators
     assert float(phase) == pytest.approx(0.0, abs=1e-9)
     np.testing.assert_allclose(target, np.asarray(reference.joints[0]), atol=1e-9)
     expected = (np.asarray(reference.torque[0])
                 + gains.sagittal_damping * np.asarray(reference.joint_slope[0]) / float(reference.step_time)
-                + gains.sagittal_stiffness * (target - qpos[[layout.hip[0], layout.knee[0], layout.hip[1],
-                                                            layout.knee[1]]]))
+                + gains.sagittal_stiffness * (target - qpos[layout.sagittal_q]))
     np.testing.assert_allclose(u[actuators], expected, rtol=1e-9, atol=1e-9)
     assert np.count_nonzero(np.delete(u, actuators)) == 0
     rates = qvel + np.random.default_rng(0).normal(0.0, 1.0, qvel.shape)
