@@ -250,8 +250,10 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
     if touchdowns:
         impulse, jump = (np.median([t[key] for t in touchdowns])
                          for key in ("impulse_relative_error", "velocity_jump_relative_error"))
-        console.print(f"touchdowns against the impact map (medians): impulse error {impulse:.0%}, "
-                      f"velocity-jump error {jump:.0%}")
+        rebounds = sum(t["replay_rebound"] for t in touchdowns)
+        console.print(f"touchdowns isolated from the controller against the impact map (medians): impulse error "
+                      f"{impulse:.0%}, velocity-jump error {jump:.0%}; in the replay the landing foot rebounded "
+                      f"at {rebounds} of {len(touchdowns)}")
     console.print(f"wrote {out}/humanoid.json, humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, "
                   f"humanoid_replay.npz in {time.perf_counter() - started:.0f} s")
     return report

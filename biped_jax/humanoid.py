@@ -468,31 +468,129 @@ def rigid_impact(mj_model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, qve
     return after - before, impulse
 
 
-def compare_touchdowns(run: Replay, mj_model: mujoco.MjModel, layout: Layout) -> list[dict]:
-    """Each touchdown in the contact model against the rigid impact map from the state just before it.
+#: The isolated touchdown ends when the landing foot's speed has fallen below this share of its speed
+#: before contact (the rigid map stops it completely; the soft contact only asymptotically).
+STOPPED_FRACTION = 0.1
 
-    The contact model's impact is the compression of the soft contact: from the first penetration until
-    the landing foot stops sinking. Its impulse is the landing foot's ground force integrated over that
-    time (gravity and the other foot act meanwhile too, so agreement is not exact).
+
+def c_model_with_gains(mj_model: mujoco.MjModel, layout: Layout, gains: Gains) -> mujoco.MjModel:
+    """A copy of the MuJoCo C model with the PD loops' joint damping and springs of :func:`with_gains`."""
+    import copy
+    model = copy.deepcopy(mj_model)
+    tuned = with_gains(robots.put_mjx_model(mj_model), layout, gains)
+    model.dof_damping[:] = np.asarray(tuned.dof_damping)
+    model.jnt_stiffness[:] = np.asarray(tuned.jnt_stiffness)
+    return model
+
+
+def _foot_ground_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) -> np.ndarray:
+    """World-frame force of the ground on ``geom`` during the last step, shape (3,), N."""
+    total, force = np.zeros(3), np.zeros(6)
+    for c in range(data.ncon):
+        contact = data.contact[c]
+        if geom in (contact.geom1, contact.geom2):
+            mujoco.mj_contactForce(model, data, c, force)
+            sign = 1.0 if contact.geom2 == geom else -1.0  # the frame's normal points from geom1 to geom2
+            total += sign * contact.frame.reshape(3, 3).T @ force[:3]
+    return total
+
+
+def _linear_momentum(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    mujoco.mj_forward(model, data)
+    mujoco.mj_subtreeVel(model, data)
+    return float(model.body_subtreemass[0]) * data.subtree_linvel[0].copy()
+
+
+def isolated_touchdown(model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, qvel: np.ndarray,
+                       ctrl: np.ndarray, stance: int, window: float = 0.02) -> dict:
+    """The contact model's touchdown without the control loop's reaction to it: MuJoCo C stepped from
+    (qpos, qvel), the state before the landing foot's (leg ``1 - stance``) first contact, with the
+    torques ``ctrl`` of that moment held, once as is and once without the landing foot's contact (its
+    twin), until the landing foot's speed falls below :data:`STOPPED_FRACTION` of its speed before
+    contact or ``window`` s pass. ``model``: the simulated model, gains included
+    (:func:`c_model_with_gains`). Returns (SI units) duration; the landing foot's ground impulse (x, z);
+    the sagittal velocity change (7,) the contact caused (with minus twin: the same gravity, torques and
+    damping act on both); the robot's linear momentum change, with minus twin, (x, z)."""
+    geom = model.geom(f"foot_{SIDES[1 - stance]}").id
+    site = layout.foot_site[1 - stance]
+    columns = sagittal_columns(layout, stance)
+    steps = max(1, int(round(window / model.opt.timestep)))
+
+    def run(contact: bool):
+        saved = model.geom_contype[geom], model.geom_conaffinity[geom]
+        if not contact:
+            model.geom_contype[geom] = model.geom_conaffinity[geom] = 0
+        try:
+            data = mujoco.MjData(model)
+            data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
+            momentum = _linear_momentum(model, data)
+            speed0 = np.linalg.norm(_site_velocity(model, data, site))
+            impulse, states = np.zeros(3), []
+            for _ in range(steps):
+                mujoco.mj_step(model, data)
+                impulse += _foot_ground_force(model, data, geom) * model.opt.timestep
+                speed = np.linalg.norm(_site_velocity(model, data, site))
+                states.append((data.qvel[columns].copy(), impulse.copy(), _linear_momentum(model, data) - momentum,
+                               speed <= STOPPED_FRACTION * speed0))
+            return states
+        finally:
+            model.geom_contype[geom], model.geom_conaffinity[geom] = saved
+
+    touching, twin = run(True), run(False)
+    end = next((i for i, state in enumerate(touching) if state[3]), steps - 1)
+    velocity, impulse, momentum, _ = touching[end]
+    return {"duration_s": (end + 1) * float(model.opt.timestep), "impulse_Ns": impulse[[0, 2]],
+            "velocity_jump": velocity - twin[end][0], "momentum_change_Ns": (momentum - twin[end][2])[[0, 2]]}
+
+
+def _site_velocity(model: mujoco.MjModel, data: mujoco.MjData, site: int) -> np.ndarray:
+    mujoco.mj_forward(model, data)
+    velocity = np.zeros(6)
+    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, site, velocity, 0)
+    return velocity[3:]
+
+
+def compare_touchdowns(run: Replay, mj_model: mujoco.MjModel, layout: Layout, gains: Gains) -> list[dict]:
+    """Each touchdown of the replay against the rigid impact map, applied at the state just before the
+    landing foot's first contact.
+
+    Two views of the contact model's touchdown: in the replay itself (closed loop: the first contact's
+    duration, impulse and peak force, and whether the landing foot leaves the ground again within
+    :data:`IMPACT_SETTLE`), and isolated from the controller (:func:`isolated_touchdown`: torques held,
+    until the foot has nearly stopped), whose impulse and velocity change are compared with the map's.
     """
     dt = float(mj_model.opt.timestep)
+    model = c_model_with_gains(mj_model, layout, gains)
+    settle = int(round(IMPACT_SETTLE / dt))
     records = []
     for k in touchdown_indices(run):
         stance = int(run.stance[k])
         landing = 1 - stance
-        sinking = np.diff(run.feet[k:, landing, 2]) < 0  # sample k+i+1 lower than k+i
-        end = k + 1 + int(np.argmin(sinking)) if not sinking.all() else len(run.t) - 1
-        impulse = run.foot_force[k + 1:end + 1, landing][:, [0, 2]].sum(axis=0) * dt
-        columns = sagittal_columns(layout, stance)
-        jump = run.qvel[end, columns] - run.qvel[k, columns]
-        predicted_jump, predicted_impulse = rigid_impact(mj_model, layout, run.qpos[k], run.qvel[k], stance)
+        first = k  # the step in which the landing foot first carried force
+        while first > 0 and run.foot_force[first - 1, landing, 2] > 0:
+            first -= 1
+        loaded = run.foot_force[first:first + settle, landing, 2] > 0
+        contact_steps = int(np.argmin(loaded)) if not loaded.all() else len(loaded)
+        closed_loop_impulse = run.foot_force[first:first + contact_steps, landing][:, [0, 2]].sum(axis=0) * dt
+        before_q, before_v = run.qpos[first - 1], run.qvel[first - 1]
+        predicted_jump, predicted_impulse = rigid_impact(mj_model, layout, before_q, before_v, stance)
+        isolated = isolated_touchdown(model, layout, before_q, before_v, run.ctrl[first], stance, IMPACT_SETTLE)
         records.append({
-            "time_s": float(run.t[k]), "landing_leg": SIDES[landing], "duration_s": (end - k) * dt,
-            "impulse_Ns": impulse.tolist(), "impact_map_impulse_Ns": predicted_impulse.tolist(),
-            "velocity_jump": jump.tolist(), "impact_map_velocity_jump": predicted_jump.tolist(),
-            "impulse_relative_error": float(np.linalg.norm(impulse - predicted_impulse)
+            "time_s": float(run.t[first - 1]), "landing_leg": SIDES[landing],
+            "impact_map_impulse_Ns": predicted_impulse.tolist(),
+            "impact_map_velocity_jump": predicted_jump.tolist(),
+            "replay_first_contact_s": contact_steps * dt,
+            "replay_first_contact_impulse_Ns": closed_loop_impulse.tolist(),
+            "replay_peak_force_N": float(run.foot_force[first:first + contact_steps, landing, 2].max()),
+            # the landing foot left the ground again within IMPACT_SETTLE of its first contact
+            "replay_rebound": bool(contact_steps < len(loaded)),
+            "isolated_duration_s": isolated["duration_s"],
+            "impulse_Ns": isolated["impulse_Ns"].tolist(),
+            "velocity_jump": isolated["velocity_jump"].tolist(),
+            "momentum_change_Ns": isolated["momentum_change_Ns"].tolist(),
+            "impulse_relative_error": float(np.linalg.norm(isolated["impulse_Ns"] - predicted_impulse)
                                             / np.linalg.norm(predicted_impulse)),
-            "velocity_jump_relative_error": float(np.linalg.norm(jump - predicted_jump)
+            "velocity_jump_relative_error": float(np.linalg.norm(isolated["velocity_jump"] - predicted_jump)
                                                   / np.linalg.norm(predicted_jump)),
         })
     return records
@@ -560,5 +658,5 @@ def walk_report(run: Replay, mj_model: mujoco.MjModel, layout: Layout, reference
             for s in SIDES]]).max()),
         "gains": {k: float(v) for k, v in dataclasses.asdict(gains).items()},
         "timestep_s": dt,
-        "touchdowns": compare_touchdowns(run, mj_model, layout),
+        "touchdowns": compare_touchdowns(run, mj_model, layout, gains),
     }

@@ -154,3 +154,29 @@ def test_control_law_is_feed_forward_plus_pd_on_the_phased_reference(m2_referenc
     bent[layout.knee[1]] += 0.01
     change = np.asarray(law(bent, qvel)[0]) - u
     np.testing.assert_allclose(change[actuators], [0.0, 0.0, 0.0, -0.01 * gains.sagittal_stiffness], atol=1e-9)
+
+
+def test_isolated_touchdown_balances_momentum_and_stops_the_foot(planarised):
+    """A swing foot landing at 0.63 m/s on the soft ground (torques held at zero, the PD loops' damping
+    acting): the robot's linear momentum changes by the landing foot's ground impulse (the other foot
+    in the air; gravity and damping cancel against the twin without that contact), the ground pushes
+    up and back on a foot moving down and forward, and the foot comes to rest within the window."""
+    model, layout = planarised
+    planar = _sagittal_equivalent(robots.load_mj_model("humanoid16_12kg"))
+    floating = robots.put_mjx_model(planar)
+    qf = np.array([0.05, 0.27, 0.0, 0.3, 1.2, -0.3, 0.1])  # leg 2 reaching ahead, leg 1 folded up
+    qfd = np.array([0.6, -0.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # the whole robot moving forward and down
+    qf[1] -= float(hs.site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
+    assert float(hs.site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
+    qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
+    columns = humanoid.sagittal_columns(layout, 0)
+    qpos[columns], qvel[columns] = qf, qfd
+    simulated = humanoid.c_model_with_gains(model, layout, humanoid.DEFAULT_GAINS)
+    result = humanoid.isolated_touchdown(simulated, layout, qpos, qvel, np.zeros(model.nu), stance=0, window=0.05)
+    impulse = result["impulse_Ns"]
+    assert impulse[1] > 0.5 and impulse[0] < 0
+    # to the Euler discretisation (the momentum is evaluated at the next positions): 5e-5 measured
+    np.testing.assert_allclose(result["momentum_change_Ns"], impulse, rtol=1e-3)
+    assert result["duration_s"] < 0.05
+    # the model handed in is left as it was (the twin's contact switched back on)
+    assert simulated.geom_contype[simulated.geom("foot_r").id] == model.geom_contype[model.geom("foot_r").id]
