@@ -36,7 +36,10 @@ def measure(solver, batch: int) -> dict:
     codesign.solve_designs(solver.with_options(max_outer=1, max_inner=2), designs, 0.555, 20.0)
     compile_s = time.perf_counter() - started
     started = time.perf_counter()
-    solutions = codesign.solve_designs(solver, designs, 0.555, 20.0)
+    solutions = codesign.solve_designs(solver, designs, 0.555, 20.0, progress=lambda i, row: print(
+        f"  batch {batch}, outer iteration {i + 1}: {time.perf_counter() - started:.0f} s, largest scaled "
+        f"violation {np.max(row['violation']):.1e}, gradients per design up to {int(np.max(row['gradients']))}",
+        flush=True))
     seconds = time.perf_counter() - started
     converged = sum(s.status == "converged" for s in solutions)
     return {"batch": batch, "compile_s": compile_s, "solve_s": seconds,
