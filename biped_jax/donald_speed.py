@@ -17,10 +17,11 @@ standing). Constraints, at the physics samples of the planned phases:
   :data:`ANGLE_BOUNDS`.
 
 Derivatives are central differences of width :data:`DIFFERENCE_STEP` (``al.central_differences``),
-not reverse mode: through 5 700 contact steps the exact gradient of the speed explodes (measured at a
-feasible fast gait: entries up to 1e32 with 4 ms steps) and at finer scales it is that of single
-contact events, while differences over a few per cent of each parameter show the trend (they agree in
-sign between widths of 1 % and 3 %, and not at 0.3 %). Seven parameters make a difference gradient
+not reverse mode: through 5 700 contact steps the exact gradient of the speed is no guide (measured
+at a feasible fast gait: with 2 ms steps its shift-time entry has the opposite sign to every
+difference's, with 4 ms steps its entries reach 1e32); it is that of single contact events, while
+differences over a few per cent of each parameter show the trend (they agree in sign between widths of
+1 % and 3 %, and not at 0.3 %). Seven parameters make a difference gradient
 14 rollouts, one vmapped call, and no reverse pass to compile.
 
 The motor limits need no constraint: every joint's torque is clipped to its drive's speed-torque line
