@@ -495,10 +495,13 @@ def _foot_ground_force(model: mujoco.MjModel, data: mujoco.MjData, geom: int) ->
     return total
 
 
-def _linear_momentum(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+def _momentum_and_site_speed(model: mujoco.MjModel, data: mujoco.MjData, site: int) -> tuple[np.ndarray, float]:
+    """The robot's linear momentum, shape (3,), N s, and the speed of ``site``, m/s, at data's state."""
     mujoco.mj_forward(model, data)
     mujoco.mj_subtreeVel(model, data)
-    return float(model.body_subtreemass[0]) * data.subtree_linvel[0].copy()
+    velocity = np.zeros(6)
+    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, site, velocity, 0)
+    return float(model.body_subtreemass[0]) * data.subtree_linvel[0].copy(), float(np.linalg.norm(velocity[3:]))
 
 
 def isolated_touchdown(model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, qvel: np.ndarray,
@@ -511,43 +514,32 @@ def isolated_touchdown(model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, 
     (:func:`c_model_with_gains`). Returns (SI units) duration; the landing foot's ground impulse (x, z);
     the sagittal velocity change (7,) the contact caused (with minus twin: the same gravity, torques and
     damping act on both); the robot's linear momentum change, with minus twin, (x, z)."""
+    import copy
     geom = model.geom(f"foot_{SIDES[1 - stance]}").id
     site = layout.foot_site[1 - stance]
     columns = sagittal_columns(layout, stance)
     steps = max(1, int(round(window / model.opt.timestep)))
+    twin_model = copy.deepcopy(model)
+    twin_model.geom_contype[geom] = twin_model.geom_conaffinity[geom] = 0
 
-    def run(contact: bool):
-        saved = model.geom_contype[geom], model.geom_conaffinity[geom]
-        if not contact:
-            model.geom_contype[geom] = model.geom_conaffinity[geom] = 0
-        try:
-            data = mujoco.MjData(model)
-            data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
-            momentum = _linear_momentum(model, data)
-            speed0 = np.linalg.norm(_site_velocity(model, data, site))
-            impulse, states = np.zeros(3), []
-            for _ in range(steps):
-                mujoco.mj_step(model, data)
-                impulse += _foot_ground_force(model, data, geom) * model.opt.timestep
-                speed = np.linalg.norm(_site_velocity(model, data, site))
-                states.append((data.qvel[columns].copy(), impulse.copy(), _linear_momentum(model, data) - momentum,
-                               speed <= STOPPED_FRACTION * speed0))
-            return states
-        finally:
-            model.geom_contype[geom], model.geom_conaffinity[geom] = saved
+    def run(simulated: mujoco.MjModel):
+        data = mujoco.MjData(simulated)
+        data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
+        momentum, speed0 = _momentum_and_site_speed(simulated, data, site)
+        impulse, states = np.zeros(3), []
+        for _ in range(steps):
+            mujoco.mj_step(simulated, data)
+            impulse += _foot_ground_force(simulated, data, geom) * simulated.opt.timestep
+            now, speed = _momentum_and_site_speed(simulated, data, site)
+            states.append((data.qvel[columns].copy(), impulse.copy(), now - momentum,
+                           speed <= STOPPED_FRACTION * speed0))
+        return states
 
-    touching, twin = run(True), run(False)
+    touching, twin = run(model), run(twin_model)
     end = next((i for i, state in enumerate(touching) if state[3]), steps - 1)
     velocity, impulse, momentum, _ = touching[end]
     return {"duration_s": (end + 1) * float(model.opt.timestep), "impulse_Ns": impulse[[0, 2]],
             "velocity_jump": velocity - twin[end][0], "momentum_change_Ns": (momentum - twin[end][2])[[0, 2]]}
-
-
-def _site_velocity(model: mujoco.MjModel, data: mujoco.MjData, site: int) -> np.ndarray:
-    mujoco.mj_forward(model, data)
-    velocity = np.zeros(6)
-    mujoco.mj_objectVelocity(model, data, mujoco.mjtObj.mjOBJ_SITE, site, velocity, 0)
-    return velocity[3:]
 
 
 def compare_touchdowns(run: Replay, mj_model: mujoco.MjModel, layout: Layout, gains: Gains) -> list[dict]:
