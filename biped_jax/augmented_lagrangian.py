@@ -70,7 +70,7 @@ def central_differences(evaluate: Callable, step: float) -> Callable:
     For objectives that are rough on small scales, such as a long rollout through contact, whose exact
     gradient explodes (or is that of one contact event) while the trend over a parameter change of
     ``step`` is what an optimiser can use: the difference is the gradient of f smoothed over that
-    width. One derivative costs 2n evaluations, run as one vmapped call.
+    width. A value with its derivative costs 2n + 1 evaluations, run as one vmapped call.
     """
     @jax.custom_vjp
     def smoothed(x, params):

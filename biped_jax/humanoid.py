@@ -18,6 +18,7 @@ model's leg 1 at the start.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 
@@ -475,7 +476,6 @@ STOPPED_FRACTION = 0.1
 
 def c_model_with_gains(mj_model: mujoco.MjModel, layout: Layout, gains: Gains) -> mujoco.MjModel:
     """A copy of the MuJoCo C model with the PD loops' joint damping and springs of :func:`with_gains`."""
-    import copy
     model = copy.deepcopy(mj_model)
     tuned = with_gains(robots.put_mjx_model(mj_model), layout, gains)
     model.dof_damping[:] = np.asarray(tuned.dof_damping)
@@ -514,7 +514,6 @@ def isolated_touchdown(model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, 
     (:func:`c_model_with_gains`). Returns (SI units) duration; the landing foot's ground impulse (x, z);
     the sagittal velocity change (7,) the contact caused (with minus twin: the same gravity, torques and
     damping act on both); the robot's linear momentum change, with minus twin, (x, z)."""
-    import copy
     geom = model.geom(f"foot_{SIDES[1 - stance]}").id
     site = layout.foot_site[1 - stance]
     columns = sagittal_columns(layout, stance)
