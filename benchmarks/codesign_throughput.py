@@ -51,8 +51,9 @@ def measure(solver, batch: int) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
-    parser.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
-    parser.add_argument("--degree", type=int, default=6)
+    parser.add_argument("--spans", type=int, default=16, help="knot spans of the joint B-splines (default 16)")
+    parser.add_argument("--degree", type=int, default=3, help="B-spline degree (default 3)")
+    parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8)")
     parser.add_argument("--dynamics", choices=("mjx", "chain"), default="chain",
                         help="single-support dynamics (default chain, the co-design study's)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
@@ -63,7 +64,8 @@ def main():
     from biped_jax import gait
     from biped_jax.gait_solver import GaitSolver
     from biped_jax.codesign_study import STUDY_OPTIONS
-    settings = gait.GaitSettings(steps=args.steps, degree=args.degree, dynamics=args.dynamics)
+    settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+                                dynamics=args.dynamics)
     solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)
     rows = []
     print(f"{'batch':>6s} {'compile s':>16s} {'solve s':>9s} {'designs/s':>10s} {'converged':>10s} "
@@ -73,7 +75,8 @@ def main():
         rows.append(row)
         print(f"{batch:6d} {row['compile_s']:16.1f} {row['solve_s']:9.1f} {row['designs_per_second']:10.3f} "
               f"{row['converged']:6d}/{batch:<3d} {row['mean_gradients']:10.0f}", flush=True)
-        save_results(args.name, {"steps": args.steps, "degree": args.degree, "dynamics": args.dynamics, "speed": 0.555,
+        save_results(args.name, {"spans": args.spans, "degree": args.degree, "substeps": args.substeps,
+                                 "dynamics": args.dynamics, "speed": 0.555,
                                              "power_limit": 20.0, "float": "float64"}, rows, args.out)
 
 

@@ -113,19 +113,21 @@ def measure_c(settings, x, multipliers, repeats):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
-    parser.add_argument("--degree", type=int, default=6, help="Bezier degree (default 6)")
+    parser.add_argument("--spans", type=int, default=16, help="knot spans of the joint B-splines (default 16)")
+    parser.add_argument("--degree", type=int, default=3, help="B-spline degree (default 3)")
+    parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8)")
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 256, 1024])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-baseline", action="store_true", help="skip the MuJoCo C baseline")
-    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="mjx",
-                        help="single-support dynamics of the rollout (default mjx)")
+    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="chain",
+                        help="single-support dynamics of the rollout (default chain)")
     parser.add_argument("--name", default="grad_throughput", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     from biped_jax import gait
-    settings = gait.GaitSettings(steps=args.steps, degree=args.degree, dynamics=args.dynamics)
+    settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+                                dynamics=args.dynamics)
     solver, model, x0, multipliers = _problem(settings)
     rows, mjx_gradient = [], None
     print(f"{'backend':32s} {'batch':>6s} {'compile s':>10s} {'ms/call':>10s} {'grad/s':>10s} {'ms/grad':>8s}")
@@ -158,7 +160,8 @@ def main():
               f"{row['max_relative_difference_to_mjx']:.1e} relative)")
         print(f"MJX over MuJoCo C finite differences: {row['mjx_single_speedup']:.1f}x at batch "
               f"{args.batch[0]}, {row['mjx_best_batch_speedup']:.1f}x at the best batch")
-    save_results(args.name, {"steps": args.steps, "degree": args.degree, "model": "M2", "dynamics": args.dynamics,
+    save_results(args.name, {"spans": args.spans, "degree": args.degree,
+                                 "substeps": args.substeps, "model": "M2", "dynamics": args.dynamics,
                                      "decision_variables": int(x0.size), "float": "float64"},
                  rows, args.out)
 

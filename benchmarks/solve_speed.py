@@ -16,11 +16,12 @@ from _results import save_results
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=60)
-    parser.add_argument("--degree", type=int, default=6)
+    parser.add_argument("--spans", type=int, default=16)
+    parser.add_argument("--degree", type=int, default=3)
+    parser.add_argument("--substeps", type=int, default=8)
     parser.add_argument("--cache", type=Path, default=None, help="use this persistent cache folder")
-    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="mjx",
-                        help="single-support dynamics of the rollout (default mjx)")
+    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="chain",
+                        help="single-support dynamics of the rollout (default chain)")
     parser.add_argument("--name", default="solve_speed", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
@@ -32,7 +33,8 @@ def main():
     from biped_jax import gait, study
     from biped_jax.gait_solver import GaitSolver
 
-    settings = gait.GaitSettings(steps=args.steps, degree=args.degree, dynamics=args.dynamics)
+    settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+                                dynamics=args.dynamics)
     rows = []
 
     def record(label, started, solutions):
@@ -58,7 +60,8 @@ def main():
     started = time.perf_counter()
     record("M1-M4 batch warm (compiled)", started, solver.solve(names, models))
 
-    save_results(args.name, {"steps": args.steps, "degree": args.degree, "dynamics": args.dynamics,
+    save_results(args.name, {"spans": args.spans, "degree": args.degree,
+                                 "substeps": args.substeps, "dynamics": args.dynamics,
                                  "persistent_cache": bool(args.cache)}, rows, args.out)
 
 

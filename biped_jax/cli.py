@@ -26,7 +26,7 @@ from rich.console import Console
 console = Console(stderr=True)
 
 #: ``biped_jax.gait.DYNAMICS``, written out so that ``--help`` does not import JAX (a test keeps them equal).
-DYNAMICS = ("mjx", "chain")
+DYNAMICS = ("chain", "mjx")
 DYNAMICS_HELP = ("single-support dynamics of the gait rollout: MJX's pipeline, or the closed-form planar "
                  "chain (equal to MJX's to rounding, several times faster)")
 
@@ -169,36 +169,36 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, steps: int, degree: int, bisections: int, dynamics: str = "mjx") -> dict:
+def reproduce(out: Path, settings, bisections: int) -> dict:
     """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
     from biped_jax import study
-    from biped_jax.gait import GaitSettings
 
     started = time.perf_counter()
-    with live_progress(("M1-M4:", "20 W:", "restart:")) as progress:
-        results = study.run_study(out, GaitSettings(steps=steps, degree=degree, dynamics=dynamics), bisections,
-                                  progress)
+    with live_progress(("M1-M4", "20 W:", "restart:")) as progress:
+        results = study.run_study(out, settings, bisections, progress)
     for record in results["models"]:
-        console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g}, largest violation "
-                      f"{record['max_violation']:.1e}, smallest feasible M_W {record['min_power_limit_W']:.2f} W")
+        check = record["refinement"]
+        console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
+                      f"{check['steps']} steps), largest violation {record['max_violation']:.1e}, smallest feasible "
+                      f"M_W {record['min_power_limit_W']:.2f} W")
     console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
                   f"convergence.png in {time.perf_counter() - started:.0f} s")
     return results
 
 
-def kelly(out: Path, steps: int, degree: int) -> dict:
+def kelly(out: Path, spans: int, degree: int, substeps: int) -> dict:
     """Kelly's benchmark with a live progress line; see :func:`biped_jax.kelly.run_kelly`."""
     import dataclasses
 
     from biped_jax import kelly as benchmark
 
-    settings = dataclasses.replace(benchmark.KELLY_SETTINGS, steps=steps, degree=degree)
+    settings = dataclasses.replace(benchmark.KELLY_SETTINGS, spans=spans, degree=degree, substeps=substeps)
     started = time.perf_counter()
     with live_progress(("outer iteration",)) as progress:
         record = benchmark.run_kelly(out, settings, progress)
     console.print(f"Kelly's five-link biped: {record['status']}, J = {record['cost']:.4g} N^2 m^2 s on "
-                  f"{record['steps']} Euler steps ({record['cost_coarse']:.4g} on {record['steps_coarse']}; "
-                  f"extrapolated to dt -> 0: {record['cost_extrapolated']:.4g}), largest violation "
+                  f"{record['steps']} Runge-Kutta steps ({record['cost_coarse']:.4g} on {record['steps_coarse']}, "
+                  f"{record['cost_refined']:.4g} on {record['steps_refined']}), largest violation "
                   f"{record['max_violation']:.1e}; active: {', '.join(record['active_constraints'])}")
     console.print(f"wrote {out}/kelly.json, kelly_step.png in {time.perf_counter() - started:.0f} s")
     return record
@@ -259,15 +259,13 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
     return report
 
 
-def codesign(out: Path, steps: int, degree: int, iterations: int, dynamics: str = "chain") -> dict:
+def codesign(out: Path, settings, iterations: int) -> dict:
     """The co-design studies; see :mod:`biped_jax.codesign_study`."""
     from biped_jax import codesign_study
-    from biped_jax.gait import GaitSettings
 
     started = time.perf_counter()
     with live_progress() as progress:
-        results = codesign_study.run_codesign(out, GaitSettings(steps=steps, degree=degree, dynamics=dynamics),
-                                              iterations, progress)
+        results = codesign_study.run_codesign(out, settings, iterations, progress)
     for speed, fit in results["mass_scaling"]["fits"].items():
         console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
                       f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
@@ -289,21 +287,26 @@ def codesign(out: Path, steps: int, degree: int, iterations: int, dynamics: str 
     return results
 
 
+def _space_arguments(parser, when: str = "") -> None:
+    """The gait problem's reference space and grid (``biped_jax.gait.GaitSettings``)."""
+    parser.add_argument("--spans", type=int, default=16, help=f"knot spans of the joint B-splines{when} (default 16)")
+    parser.add_argument("--degree", type=int, default=3, help=f"B-spline degree{when} (default 3)")
+    parser.add_argument("--substeps", type=int, default=8,
+                        help=f"Runge-Kutta steps per knot span, even{when} (default 8)")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="biped-jax", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("reproduce", help="run the paper's study and write results")
     run.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    run.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
-    run.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
+    _space_arguments(run)
     run.add_argument("--bisections", type=int, default=6,
                      help="bisection steps for the smallest feasible power limit (default 6)")
-    run.add_argument("--dynamics", choices=DYNAMICS, default="mjx", help=DYNAMICS_HELP + " (default mjx)")
+    run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     bench = commands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
     bench.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    bench.add_argument("--steps", type=int, default=200,
-                       help="Euler steps per walking step of the coarse grid; the fine grid has twice as many")
-    bench.add_argument("--degree", type=int, default=8, help="Bezier degree of the joint references")
+    _space_arguments(bench)
     walker = commands.add_parser("donald", help="DONALD's statically stable walk in MJX (figures, JSON)")
     walker.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
     walker.add_argument("--steps", type=int, default=8, help="steps to walk (default 8)")
@@ -317,14 +320,11 @@ def main(argv: list[str] | None = None) -> int:
     replay.add_argument("--steps", type=int, default=10, help="steps to walk (default 10)")
     replay.add_argument("--gaits", type=Path, default=None,
                         help="folder with results.json from `biped-jax reproduce` (default: solve the model here)")
-    replay.add_argument("--gait-steps", type=int, default=60,
-                        help="Euler steps of the gait problem when solving here (default 60)")
-    replay.add_argument("--degree", type=int, default=6, help="Bezier degree when solving here (default 6)")
+    _space_arguments(replay, " when solving here")
     design = commands.add_parser("codesign", help="co-design studies: gear ratios, windings and masses with "
                                  "the gait (figures, JSON; tens of minutes)")
     design.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    design.add_argument("--steps", type=int, default=60, help="Euler steps per walking step (default 60)")
-    design.add_argument("--degree", type=int, default=6, help="Bezier degree of the joint references")
+    _space_arguments(design)
     design.add_argument("--iterations", type=int, default=5, help="co-optimisation iterations (default 5)")
     design.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
@@ -377,27 +377,33 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "step":
         heuristic_steps(args.out)
         return 0
-    for name in ("steps", "degree", "bisections", "iterations", "gait_steps"):
+    for name in ("steps", "bisections", "iterations"):
         if getattr(args, name, 1) < 1:
             parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
+    settings = None
+    if hasattr(args, "spans"):
+        from biped_jax.gait import GaitSettings
+        try:
+            settings = GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+                                    dynamics=getattr(args, "dynamics", "chain"))
+        except ValueError as error:
+            parser.error(str(error))
     if args.command == "kelly":
-        kelly(args.out, args.steps, args.degree)
+        kelly(args.out, args.spans, args.degree, args.substeps)
         return 0
     if args.command == "donald":
         donald_walk(args.out, args.steps, args.faster)
         return 0
     if args.command == "humanoid":
-        from biped_jax.gait import GaitSettings
         try:
-            humanoid_walk(args.out, args.model, args.steps, GaitSettings(steps=args.gait_steps, degree=args.degree),
-                          args.gaits)
+            humanoid_walk(args.out, args.model, args.steps, settings, args.gaits)
         except (ValueError, FileNotFoundError) as error:
             parser.error(str(error))
         return 0
     if args.command == "codesign":
-        codesign(args.out, args.steps, args.degree, args.iterations, args.dynamics)
+        codesign(args.out, settings, args.iterations)
         return 0
-    reproduce(args.out, args.steps, args.degree, args.bisections, args.dynamics)
+    reproduce(args.out, settings, args.bisections)
     return 0
 
 

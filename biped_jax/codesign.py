@@ -239,8 +239,8 @@ def design_record(design: DriveDesign, solution) -> dict:
                                                drives.efficiency)
     needed = np.abs(np.asarray(drive_model.voltage(
         torque_at_motor, drive_model.motor_speed(trajectory.joint_speed, drives.ratio), drives)))
-    dt = float(trajectory.t[1] - trajectory.t[0])
-    exact_joule = float(np.sum(dt * np.asarray(drive_model.joule_loss(torque_at_motor, drives))))
+    weights = np.asarray(trajectory.weights)[:, None]  # the trajectory's quadrature, s
+    exact_joule = float(np.sum(weights * np.asarray(drive_model.joule_loss(torque_at_motor, drives))))
     return {
         "ratio": np.asarray(design.ratio).tolist(),
         "torque_constant_Nm_per_A": float(design.torque_constant[0]),

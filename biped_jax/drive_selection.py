@@ -39,6 +39,15 @@ class JointWorkspace:
         return (s >= window) & (s <= 1 - window)
 
 
+def trapezoid_weights(t: np.ndarray) -> np.ndarray:
+    """Weights w, shape (T,), s, with w . f the trapezoidal integral of samples f at times t (T,)."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return np.ones_like(t)
+    gaps = np.diff(t)
+    return 0.5 * (np.concatenate([gaps, [0.0]]) + np.concatenate([[0.0], gaps]))
+
+
 def requirements(workspace: JointWorkspace, window: float = IMPACT_WINDOW) -> dict:
     """Table 6 for one gait: torques in N m, speeds in rpm, power in W (SI except rpm at this edge)."""
     inside = workspace.outside_impacts(window)
@@ -73,11 +82,12 @@ def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gea
     motor_torque = np.asarray(drives.motor_torque(torque, speed, gear.ratio, gear.efficiency))
     motor_speed = np.asarray(drives.motor_speed(speed, gear.ratio))
     margin = np.asarray(drives.voltage_margin(motor_torque, motor_speed, motor, supply_voltage))
-    dt = float(np.median(np.diff(workspace.t)))
+    # the samples may be unevenly spaced (the gait's grid): time averages by the trapezoidal rule
+    weights = trapezoid_weights(workspace.t)[:, None]
     all_torque = np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio, gear.efficiency))
-    rms_motor = np.sqrt(np.mean(all_torque**2, axis=0))
-    rms_output = np.sqrt(np.mean(workspace.torque**2, axis=0))
-    joule = float(np.sum(np.asarray(drives.joule_loss(all_torque, motor))) * dt)
+    rms_motor = np.sqrt(np.sum(weights * all_torque**2, axis=0) / weights.sum())
+    rms_output = np.sqrt(np.sum(weights * workspace.torque**2, axis=0) / weights.sum())
+    joule = float(np.sum(weights * np.asarray(drives.joule_loss(all_torque, motor))))
     checks = [
         (margin.min() >= 0, f"voltage: needs {supply_voltage - margin.min():.1f} V > {supply_voltage:g} V supply "
                             f"(operating point above the speed-torque line)"),
@@ -173,8 +183,8 @@ def save_workspaces(path, solutions) -> None:
     arrays = {}
     for s in solutions:
         tr = s.trajectory
-        arrays[f"{s.name}_t"] = np.asarray(tr.t)[:-1]
-        arrays[f"{s.name}_speed"] = np.asarray(tr.qd)[:-1, ACTUATED_INDEX]
+        arrays[f"{s.name}_t"] = np.asarray(tr.t)
+        arrays[f"{s.name}_speed"] = np.asarray(tr.qd)[:, ACTUATED_INDEX]
         arrays[f"{s.name}_torque"] = np.asarray(tr.u)
         arrays[f"{s.name}_meta"] = np.array([s.step_time_s, s.mass_kg, s.speed_mps,
                                              1.0 if s.status == "converged" else 0.0])

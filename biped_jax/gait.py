@@ -1,27 +1,38 @@
-"""The periodic one-step gait problem of planar-step.md, by single shooting through MJX.
+"""The periodic one-step gait problem of planar-step.md, transcribed so that its answer does not move
+with the grid.
 
-Parameterisation (see README, "Gait optimiser"): the four actuated joints follow Bezier polynomials in
-normalised time s = t / t_f, tracked inside the rollout by collocated partial feedback linearisation
-(Spong 1994) that commands, at every Euler step, the acceleration putting the joints exactly on the
-next reference sample (deadbeat in the discrete dynamics). Only the stance angle evolves open loop,
-so the shooting sensitivity is that of an inverted pendulum, not of the whole chain. Relabelling
-makes the first Bezier coefficients the mirror of the last ones, so the actuated positions are
-periodic by construction (hybrid zero dynamics, Westervelt et al. 2003).
+Parameterisation (see README, "Gait optimiser"): the four actuated joints are *prescribed* as clamped
+B-splines q_a(s) in normalised time s = t / t_f, with their analytic first and second derivatives.
+Only the stance angle theta is integrated: its zero dynamics, the unactuated row of
+M(q) qdd + h(q, qd) = B u, solved for theta_dd given (q_a, qd_a, qdd_a), by classical Runge-Kutta
+(4th order) on a grid aligned with the spline's knots (``substeps`` equal steps per knot span, so the
+integrand is smooth inside every step and the method keeps its order). The torques are read from the
+actuated rows at each grid point, the cost J = integral of u^T u dt is taken by composite Simpson
+quadrature (4th order) and every path constraint is checked at every grid point, the start and the end
+included. The start state is the spline's own value and slope, so the state, the torque, the ground
+force and the power at t = 0 are those of a continuous trajectory (the old deadbeat Euler controller
+was not consistent at its first sample). Relabelling makes the first control point the mirror of the
+last, so the actuated positions are periodic by construction (hybrid zero dynamics, Westervelt et al.
+2003); the stance angle and all five rates are periodic through equality constraints.
 
-Decision vector x (shape (2 + 4 n,), n the Bezier degree): stance angle (rad) and rate (rad/s) at the
-start, then the Bezier coefficients 1..n of (H1, K1, H2, K2) in rad.
+Decision vector x (shape (2 + 4 (spans + degree - 1),)): stance angle (rad) and rate (rad/s) at the
+start, then the B-spline control points 1..n of (H1, K1, H2, K2) in rad, n = spans + degree - 1
+(control point 0 mirrors control point n).
 
-Torques, cost, power and the tables all use the torques the controller applies in the rollout.
+:func:`refined` gives the same problem on a grid ``REFINEMENT`` times finer; a solution is reported
+with its cost and violations there (:mod:`biped_jax.gait_solver`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.interpolate import BSpline
 
 from biped_jax import drives as drive_model
 from biped_jax import hybrid_step as hs
@@ -47,10 +58,24 @@ TORQUE_SCALE = 10.0  # N m
 VOLTAGE_SCALE = 10.0  # V
 
 #: The single-support dynamics a rollout can use (:class:`GaitSettings`).
-DYNAMICS = ("mjx", "chain")
+DYNAMICS = ("chain", "mjx")
 
 #: Power limit standing for "no power limit" (Kelly's benchmark, the co-design's mass study), W.
 NO_POWER_LIMIT = 1e6
+
+#: The refinement check re-simulates a solution on a grid this many times finer.
+REFINEMENT = 4
+
+
+def _check_integer(name: str, value, low: int, high: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
+        raise ValueError(f"GaitSettings.{name} must be an integer in [{low}, {high}], got {value!r}")
+
+
+def _check_number(name: str, value, low: float, high: float, unit: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+            or not (math.isfinite(value) and low < value <= high):
+        raise ValueError(f"GaitSettings.{name} must be a number in ({low}, {high}] {unit}, got {value!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,30 +83,65 @@ class GaitSettings:
     """What fixes array shapes and the problem's constant bounds (static: one compile per settings).
 
     Attributes:
-      steps: Euler steps per walking step.
-      degree: Bezier degree of the joint references.
+      spans: knot spans of the joint references' B-splines.
+      degree: their polynomial degree (2 to 7; 3, cubic, by default: accelerations continuous).
+      substeps: Runge-Kutta steps per knot span, even (Simpson's rule pairs them); the grid has
+        ``spans * substeps`` steps and every path constraint is checked at its points.
+      grading: knot placement between uniform (0) and cosine-clustered at both impacts (1), where the
+        optimal gait moves fastest.
       torque_bound: |u_i| <= torque_bound, N m.
       friction: friction coefficient of the stance foot and the impact.
       knee_max: largest knee flexion, rad (the smallest is 0).
-      dynamics: "mjx" (MJX's forward pipeline) or "chain" (the closed-form planar-chain dynamics of
-        :mod:`biped_jax.planar_chain`, equal to MJX's to rounding, about 10x faster to differentiate
-        on a CPU and 4x faster to compile). The touchdown impact map is MJX's in both.
+      dynamics: "chain" (the closed-form planar-chain dynamics of :mod:`biped_jax.planar_chain`, equal
+        to MJX's to rounding and several times faster to compile and differentiate) or "mjx" (MJX's
+        forward pipeline). The touchdown impact map is MJX's in both.
+
+    Raises ValueError naming the field, its value and the allowed range.
     """
 
-    steps: int = 60
-    degree: int = 6
+    spans: int = 16
+    degree: int = 3
+    substeps: int = 8
+    grading: float = 0.5
     torque_bound: float = 20.0
     friction: float = 0.8
     knee_max: float = 2.6
-    dynamics: str = "mjx"
+    dynamics: str = "chain"
 
     def __post_init__(self):
         if self.dynamics not in DYNAMICS:
-            raise ValueError(f"dynamics must be one of {DYNAMICS}, got {self.dynamics!r}")
+            raise ValueError(f"GaitSettings.dynamics must be one of {DYNAMICS}, got {self.dynamics!r}")
+        _check_integer("spans", self.spans, 1, 200)
+        _check_integer("degree", self.degree, 2, 7)
+        _check_integer("substeps", self.substeps, 2, 400)
+        if self.substeps % 2:
+            raise ValueError(f"GaitSettings.substeps must be even (Simpson's rule), got {self.substeps}")
+        if isinstance(self.grading, bool) or not isinstance(self.grading, (int, float)) \
+                or not 0.0 <= self.grading <= 1.0:
+            raise ValueError(f"GaitSettings.grading must be in [0, 1], got {self.grading!r}")
+        _check_number("torque_bound", self.torque_bound, 0.0, math.inf, "N m")
+        _check_number("friction", self.friction, 0.0, 10.0, "(friction coefficient)")
+        _check_number("knee_max", self.knee_max, 0.0, math.pi, "rad")
+
+    @property
+    def control_points(self) -> int:
+        """Control points per joint, the mirrored first one included."""
+        return self.spans + self.degree
 
     @property
     def size(self) -> int:
-        return 2 + 4 * self.degree
+        """Length of the decision vector."""
+        return 2 + 4 * (self.control_points - 1)
+
+    @property
+    def steps(self) -> int:
+        """Runge-Kutta steps per walking step (grid intervals)."""
+        return self.spans * self.substeps
+
+
+def refined(settings: GaitSettings, factor: int = REFINEMENT) -> GaitSettings:
+    """The same problem and decision vector on a grid ``factor`` times finer."""
+    return dataclasses.replace(settings, substeps=settings.substeps * factor)
 
 
 @jax.tree_util.register_dataclass
@@ -110,9 +170,11 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
     """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
     drives (the paper's problem; ``biped_jax.codesign.gait_model`` fits real ones); raises ValueError
     naming a non-positive speed, limit or length, or a step beyond the legs' reach."""
-    for name, value in (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)):
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be positive, got {value!r}")
+    for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
+                              ("step_length", step_length, "m")):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
+                or not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be positive, got {value!r} ({unit}; finite)")
     design = hs.planar_design(mass_class)
     reach = 2 * PLANAR_SPECS[mass_class].leg_length
     if step_length >= reach:
@@ -126,20 +188,23 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class GaitTrajectory:
-    """The simulated step.
+    """The simulated step, sampled at the T + 1 grid points (t = 0 and t = t_f included).
 
     Attributes:
-      t: sample times, shape (T + 1,), s. q, qd: pinned states, shape (T + 1, 5).
-      qdd: accelerations, shape (T, 5). u: torques (H1, K1, H2, K2), shape (T, 4), N m.
-      ground_force: stance (F_x, F_z), shape (T, 2), N.
+      t: sample times, shape (T + 1,), s (uniform within each knot span).
+      weights: composite Simpson weights of the samples, shape (T + 1,), s: the integral of f over the
+        step is weights . f.
+      q, qd, qdd: pinned states and accelerations, shape (T + 1, 5).
+      u: torques (H1, K1, H2, K2), shape (T + 1, 4), N m.
+      ground_force: stance (F_x, F_z), shape (T + 1, 2), N.
       swing_foot: (x, z) of the swing foot, shape (T + 1, 2), m. heights: z of hip, knee1, knee2,
         shape (T + 1, 3), m.
       touchdown: the impact at t_f and the next step's start.
       swing_foot_velocity: (x, z) at touchdown, shape (2,), m/s.
-      q0, qd0: the start state, shape (5,).
     """
 
     t: jax.Array
+    weights: jax.Array
     q: jax.Array
     qd: jax.Array
     qdd: jax.Array
@@ -152,125 +217,208 @@ class GaitTrajectory:
 
     @property
     def joint_speed(self) -> jax.Array:
-        """Actuated joint rates (H1, K1, H2, K2) at steps 0..T-1, shape (T, 4), rad/s."""
-        return self.qd[:-1, ACTUATED_INDEX]
+        """Actuated joint rates (H1, K1, H2, K2) at every sample, shape (T + 1, 4), rad/s."""
+        return self.qd[..., ACTUATED_INDEX]
 
     @property
     def joint_power(self) -> jax.Array:
-        """qdot_i u_i, shape (T, 4), W."""
+        """qdot_i u_i, shape (T + 1, 4), W."""
         return self.joint_speed * self.u
 
 
-def bezier_coefficients(x: jax.Array, settings: GaitSettings) -> jax.Array:
-    """All Bezier coefficients, shape (degree + 1, 4), rad: coefficient 0 mirrors coefficient n."""
-    free = x[2:].reshape(settings.degree, 4)
+# ----------------------------------------------------------------------------- the joint references
+
+def breakpoints(settings: GaitSettings) -> np.ndarray:
+    """Knot-span boundaries in normalised time, shape (spans + 1,), from 0 to 1."""
+    uniform = np.linspace(0.0, 1.0, settings.spans + 1)
+    return (1 - settings.grading) * uniform + settings.grading * 0.5 * (1 - np.cos(np.pi * uniform))
+
+
+def knot_vector(settings: GaitSettings) -> np.ndarray:
+    """The clamped knot vector, shape (spans + 2 degree + 1,)."""
+    inner = breakpoints(settings)
+    k = settings.degree
+    return np.concatenate([np.zeros(k), inner, np.ones(k)])
+
+
+def grid(settings: GaitSettings) -> np.ndarray:
+    """The integration grid in normalised time, shape (steps + 1,): ``substeps`` equal steps per span."""
+    edges = breakpoints(settings)
+    fractions = np.arange(settings.substeps) / settings.substeps
+    inner = (edges[:-1, None] + np.diff(edges)[:, None] * fractions[None]).ravel()
+    return np.concatenate([inner, [1.0]])
+
+
+def simpson_weights(settings: GaitSettings) -> np.ndarray:
+    """Composite Simpson weights on :func:`grid` for an integral over s in [0, 1], shape (steps + 1,)."""
+    weights = np.zeros(settings.steps + 1)
+    pattern = np.ones(settings.substeps + 1)
+    pattern[1:-1:2], pattern[2:-1:2] = 4.0, 2.0
+    for j, width in enumerate(np.diff(breakpoints(settings))):
+        h = width / settings.substeps
+        weights[j * settings.substeps:(j + 1) * settings.substeps + 1] += h / 3 * pattern
+    return weights
+
+
+@functools.lru_cache(maxsize=64)
+def _basis_cached(knots: tuple, degree: int, points: tuple) -> tuple:
+    spline = BSpline(np.array(knots), np.eye(len(knots) - degree - 1), degree, extrapolate=False)
+    s = np.clip(np.array(points), 0.0, 1.0)
+    matrices = [np.nan_to_num(spline(s))] + [np.nan_to_num(spline.derivative(n)(s)) for n in (1, 2)]
+    # BSpline is right-continuous; at s = 1 take the limit from the left
+    end = s >= 1.0
+    if np.any(end):
+        for n, matrix in enumerate(matrices):
+            fn = spline if n == 0 else spline.derivative(n)
+            matrix[end] = fn(np.nextafter(1.0, 0.0))
+    return tuple(matrices)
+
+
+def basis(settings: GaitSettings, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """B-spline basis and its first two derivatives in s at points ``s`` (m,), each (m, control_points)."""
+    return _basis_cached(tuple(knot_vector(settings)), settings.degree, tuple(np.asarray(s, dtype=float)))
+
+
+def control_points(x: jax.Array, settings: GaitSettings) -> jax.Array:
+    """All control points, shape (control_points, 4), rad: point 0 mirrors the last one."""
+    free = x[2:].reshape(settings.control_points - 1, 4)
     return jnp.concatenate([free[-1, SWAP][None], free])
 
 
-def bezier(coefficients: jax.Array, s: jax.Array) -> jax.Array:
-    """Bezier polynomial at s in [0, 1]: coefficients (n + 1, k), s (m,) -> (m, k)."""
-    n = coefficients.shape[0] - 1
-    k = np.arange(n + 1)
-    binomial = np.array([math.comb(n, i) for i in k], dtype=float)
-    basis = binomial * s[:, None] ** k * (1 - s[:, None]) ** (n - k)
-    return basis @ coefficients
+def reference(x: jax.Array, settings: GaitSettings, s) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The actuated joints' reference and its first two derivatives in normalised time at ``s`` (m,):
+    q_a, dq_a/ds, d2q_a/ds2, each (m, 4) (divide by t_f and t_f^2 for time derivatives)."""
+    points = control_points(x, settings)
+    return tuple(jnp.asarray(b) @ points for b in basis(settings, s))
 
 
-def bezier_rate(coefficients: jax.Array, s: jax.Array) -> jax.Array:
-    """d/ds of :func:`bezier`, shape (m, k)."""
-    n = coefficients.shape[0] - 1
-    return n * bezier(coefficients[1:] - coefficients[:-1], s)
+def greville(settings: GaitSettings) -> np.ndarray:
+    """Greville abscissae, shape (control_points,): where each control point acts most, so that
+    control points set to f(abscissae) give a spline close to f."""
+    knots, k = knot_vector(settings), settings.degree
+    return np.array([knots[i + 1:i + k + 1].mean() for i in range(settings.control_points)])
 
 
-def _pinned_model(biped: hs.PlanarBiped, dt):
-    # Damping, if a design adds it, is explicit so that the commanded acceleration is met exactly.
-    pinned = hs.with_timestep(biped.pinned, dt)
-    return pinned.replace(opt=pinned.opt.replace(
-        disableflags=pinned.opt.disableflags | mjx.DisableBit.EULERDAMP))
+# ----------------------------------------------------------------------------- dynamics
+
+def _assemble(theta, actuated):
+    """Pinned coordinates (..., 5) from the stance coordinate (...,) and the actuated (..., 4)."""
+    full = jnp.zeros(actuated.shape[:-1] + (5,), actuated.dtype)
+    return full.at[..., 0].set(theta).at[..., ACTUATED_INDEX].set(actuated)
 
 
-def feedback_linearising_torque(mass, bias, desired):
-    """Torques (H1, K1, H2, K2) that give the actuated coordinates the accelerations ``desired``.
+class _ChainDynamics:
+    """Mass matrix, bias force, stance force and site positions from :mod:`biped_jax.planar_chain`."""
 
-    Collocated partial feedback linearisation: the unactuated stance row gives its acceleration,
-    the actuated rows the torques. mass (5, 5); bias = qfrc_bias - qfrc_passive, (5,); desired (4,).
-    """
-    a, s = ACTUATED_INDEX, 0
-    stance_acceleration = -(mass[s, a] @ desired + bias[s]) / mass[s, s]
-    return mass[a][:, a] @ desired + mass[a, s] * stance_acceleration + bias[a]
+    def __init__(self, biped: hs.PlanarBiped):
+        self.chain = planar_chain.PlanarChain.from_model(biped.pinned)
+        self.pinned = biped.pinned
+
+    def terms(self, q, qd):
+        kinematics = planar_chain.kinematics(self.chain, self.pinned, q, qd)
+        return (planar_chain.mass_matrix(self.chain, self.pinned, kinematics),
+                planar_chain.bias_force(self.chain, self.pinned, kinematics, qd), kinematics)
+
+    def outputs(self, q, qd, qdd, kinematics):
+        force = planar_chain.root_force(self.chain, self.pinned, kinematics, qdd)
+        return force, planar_chain.site_positions(self.chain, self.pinned, kinematics, _SITES)
+
+
+class _MjxDynamics:
+    """The same quantities from MJX's forward pipeline."""
+
+    def __init__(self, biped: hs.PlanarBiped):
+        self.pinned = biped.pinned
+        self.template = mjx.make_data(biped.pinned)
+        self.sites = jnp.array([mjx.name2id(biped.pinned, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name)
+                                for name in _SITES])
+
+    def terms(self, q, qd):
+        data = mjx.fwd_velocity(self.pinned, mjx.fwd_position(self.pinned, self.template.replace(qpos=q, qvel=qd)))
+        return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
+
+    def outputs(self, q, qd, qdd, data):
+        force = hs._stance_force(self.pinned, data.replace(qacc=qdd))
+        return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
 
 
 _SITES = ("foot2", "hip", "knee1", "knee2")
 
 
-def _desired_acceleration(q, qd, target, dt):
-    """Actuated accelerations that put the joints on ``target`` after one Euler step, (4,)."""
-    return ((target - q[ACTUATED_INDEX]) / dt - qd[ACTUATED_INDEX]) / dt
+def stance_acceleration(mass, bias, actuated_acceleration):
+    """The zero dynamics: theta_dd from the unactuated row of M qdd + bias = B u. mass (5, 5), bias =
+    qfrc_bias - qfrc_passive (5,), actuated_acceleration (4,) in (H1, K1, H2, K2) order."""
+    a = ACTUATED_INDEX
+    return -(mass[0, a] @ actuated_acceleration + bias[0]) / mass[0, 0]
 
 
-def _mjx_step(biped, pinned, dt):
-    """One tracked Euler step through MJX's pipeline: (q, qd), target -> next state, outputs."""
-    template = mjx.make_data(pinned)
-    sites = jnp.array([mjx.name2id(pinned, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name) for name in _SITES])
-
-    @jax.checkpoint
-    def step(state, target):
-        q, qd = state
-        data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, template.replace(qpos=q, qvel=qd)))
-        u = feedback_linearising_torque(mjx.full_m(pinned, data), data.qfrc_bias - data.qfrc_passive,
-                                        _desired_acceleration(q, qd, target, dt))
-        data = mjx.fwd_acceleration(pinned, mjx.fwd_actuation(pinned, data.replace(ctrl=u)))
-        data = data.replace(qacc=data.qacc_smooth)
-        force = hs._stance_force(pinned, data)
-        positions = data.site_xpos[sites]
-        data = mjx.euler(pinned, data)
-        return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc, u, force, positions)
-    return step
+def actuated_torque(mass, bias, qdd):
+    """Torques (H1, K1, H2, K2) from the actuated rows of M qdd + bias = B u, (4,), N m."""
+    a = ACTUATED_INDEX
+    return mass[a] @ qdd + bias[a]
 
 
-def _chain_step(biped, pinned, dt):
-    """The same step with the closed-form planar-chain dynamics (explicit damping, as with
-    ``EULERDAMP`` disabled)."""
-    chain = planar_chain.PlanarChain.from_model(biped.pinned)
+def feedback_linearising_torque(mass, bias, desired):
+    """Torques (H1, K1, H2, K2) that give the actuated coordinates the accelerations ``desired``
+    (collocated partial feedback linearisation, Spong 1994): the unactuated row gives the stance
+    acceleration, the actuated rows the torques. mass (5, 5); bias (5,); desired (4,)."""
+    qdd = jnp.zeros(5, desired.dtype).at[0].set(stance_acceleration(mass, bias, desired))
+    return actuated_torque(mass, bias, qdd.at[ACTUATED_INDEX].set(desired))
 
-    @jax.checkpoint
-    def step(state, target):
-        q, qd = state
-        kinematics = planar_chain.kinematics(chain, pinned, q, qd)
-        mass = planar_chain.mass_matrix(chain, pinned, kinematics)
-        bias = planar_chain.bias_force(chain, pinned, kinematics, qd)
-        u = feedback_linearising_torque(mass, bias, _desired_acceleration(q, qd, target, dt))
-        qdd = jnp.linalg.solve(mass, planar_chain.actuated_force(chain, u) - bias)
-        force = planar_chain.root_force(chain, pinned, kinematics, qdd)
-        xz = planar_chain.site_positions(chain, pinned, kinematics, _SITES)
-        positions = jnp.stack([xz[:, 0], jnp.zeros_like(xz[:, 0]), xz[:, 1]], axis=-1)
-        q_next, qd_next = planar_chain.euler(q, qd, qdd, dt)
-        return (q_next, qd_next), (q_next, qd_next, qdd, u, force, positions)
-    return step
+
+def _dynamics(biped, settings):
+    return (_ChainDynamics if settings.dynamics == "chain" else _MjxDynamics)(biped)
 
 
 def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
-    """One rollout of the step with feedback inside (pure; vmap over x and model)."""
+    """One rollout of the step (pure; vmap over x and model): the prescribed joints, the stance
+    angle's zero dynamics by RK4, the outputs at every grid point."""
     biped = hs.with_design(biped, model.design)
+    dynamics = _dynamics(biped, settings)
     step_time = model.step_length / model.speed
-    dt = step_time / settings.steps
-    pinned = _pinned_model(biped, dt)
-    coefficients = bezier_coefficients(x, settings)
-    s = jnp.linspace(0.0, 1.0, settings.steps + 1)
-    reference = bezier(coefficients, s)
-    q0 = jnp.zeros(5).at[0].set(x[0]).at[ACTUATED_INDEX].set(reference[0])
-    qd0 = jnp.zeros(5).at[0].set(x[1]).at[ACTUATED_INDEX].set(
-        bezier_rate(coefficients, s[:1])[0] / step_time)
-    step = (_chain_step if settings.dynamics == "chain" else _mjx_step)(biped, pinned, dt)
-    (q_end, qd_end), (q, qd, qdd, u, force, positions) = jax.lax.scan(step, (q0, qd0), reference[1:])
-    foot_end, foot_velocity = hs.swing_foot(pinned, q_end, qd_end)
-    end_positions = jnp.stack([hs.site_position(pinned, q_end, name) for name in _SITES])
-    positions = jnp.concatenate([positions, end_positions[None]])
+    s = grid(settings)
+    midpoints = 0.5 * (s[1:] + s[:-1])
+    scale = jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
+    at_grid = jnp.stack(reference(x, settings, s)) * scale          # (3, T + 1, 4): q_a, qd_a, qdd_a
+    at_mid = jnp.stack(reference(x, settings, midpoints)) * scale   # (3, T, 4)
+    h = jnp.asarray(np.diff(s)) * step_time
+
+    def acceleration(theta, theta_dot, ref):
+        q, qd = _assemble(theta, ref[0]), _assemble(theta_dot, ref[1])
+        mass, bias, _ = dynamics.terms(q, qd)
+        return stance_acceleration(mass, bias, ref[2])
+
+    def rk4(state, inputs):
+        start, middle, end, dt = inputs
+        theta, rate = state
+        k1 = (rate, acceleration(theta, rate, start))
+        k2 = (rate + 0.5 * dt * k1[1], acceleration(theta + 0.5 * dt * k1[0], rate + 0.5 * dt * k1[1], middle))
+        k3 = (rate + 0.5 * dt * k2[1], acceleration(theta + 0.5 * dt * k2[0], rate + 0.5 * dt * k2[1], middle))
+        k4 = (rate + dt * k3[1], acceleration(theta + dt * k3[0], rate + dt * k3[1], end))
+        theta_next = theta + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+        rate_next = rate + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        return (theta_next, rate_next), (theta_next, rate_next)
+
+    by_step = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (3, T, 4) -> (T, 3, 4)
+    _, (theta, rate) = jax.lax.scan(rk4, (x[0], x[1]), (by_step(at_grid[:, :-1]), by_step(at_mid),
+                                                        by_step(at_grid[:, 1:]), h))
+    theta = jnp.concatenate([x[:1], theta])
+    rate = jnp.concatenate([x[1:2], rate])
+
+    def outputs(theta_k, rate_k, ref):
+        q, qd = _assemble(theta_k, ref[0]), _assemble(rate_k, ref[1])
+        mass, bias, state = dynamics.terms(q, qd)
+        qdd = _assemble(stance_acceleration(mass, bias, ref[2]), ref[2])
+        force, positions = dynamics.outputs(q, qd, qdd, state)
+        return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
+
+    q, qd, qdd, u, force, positions = jax.vmap(outputs)(theta, rate, by_step(at_grid))
+    pinned = biped.pinned
+    _, foot_velocity = hs.swing_foot(pinned, q[-1], qd[-1])
     return GaitTrajectory(
-        t=dt * jnp.arange(settings.steps + 1),
-        q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]), qdd=qdd, u=u,
-        ground_force=force, swing_foot=positions[:, 0, jnp.array([0, 2])], heights=positions[:, 1:, 2],
-        touchdown=hs.touchdown(biped, q_end, qd_end), swing_foot_velocity=foot_velocity)
+        t=jnp.asarray(s) * step_time, weights=jnp.asarray(simpson_weights(settings)) * step_time,
+        q=q, qd=qd, qdd=qdd, u=u, ground_force=force, swing_foot=positions[:, 0], heights=positions[:, 1:, 1],
+        touchdown=hs.touchdown(biped, q[-1], qd[-1]), swing_foot_velocity=foot_velocity)
 
 
 # ----------------------------------------------------------------------------- constraints
@@ -333,16 +481,16 @@ def scaled_constraints(groups: dict) -> tuple[jax.Array, jax.Array]:
 
 
 def cost(trajectory: GaitTrajectory) -> jax.Array:
-    """J = integral of u^T u dt over the step, N^2 m^2 s."""
-    dt = trajectory.t[1] - trajectory.t[0]
-    return dt * jnp.sum(trajectory.u**2)
+    """J = integral of u^T u dt over the step (composite Simpson), N^2 m^2 s."""
+    return trajectory.weights @ jnp.sum(trajectory.u**2, axis=-1)
 
 
 def cost_residuals(trajectory: GaitTrajectory, drives: drive_model.JointDrives) -> jax.Array:
     """r with r . r = the objective, the drives' Joule energy (J = integral of u^T u for ideal
-    drives), flattened, shape (4 T,)."""
-    dt = trajectory.t[1] - trajectory.t[0]
-    return drive_model.joule_residuals(trajectory.u, trajectory.joint_speed, drives, dt).ravel()
+    drives), flattened, shape (4 (T + 1),): Simpson's weights are positive, so the quadrature stays a
+    sum of squares."""
+    return drive_model.joule_residuals(trajectory.u, trajectory.joint_speed, drives,
+                                       trajectory.weights[:, None]).ravel()
 
 
 def joule_energy(trajectory: GaitTrajectory, drives: drive_model.JointDrives) -> jax.Array:
@@ -360,17 +508,64 @@ def violations(groups: dict) -> dict:
     return out
 
 
-# ----------------------------------------------------------------------------- starting point
+# ----------------------------------------------------------------------------- starting points
+
+@dataclasses.dataclass(frozen=True)
+class StartFamily:
+    """A family of heuristic gaits: the shape of a start, in the joint space (no solution involved).
+
+    Attributes:
+      name: label. swing_lift: how far the swing knee flexes mid-step (rad, roughly). stance_knee:
+        flexion of the stance knee mid-stance, rad. torso_pitch: torso lean forward, rad (hips flex by
+        it). rate_factor: the stance angle's start rate as a multiple of v / leg length.
+    """
+
+    name: str
+    swing_lift: float = 0.5
+    stance_knee: float = 0.0
+    torso_pitch: float = 0.0
+    rate_factor: float = 1.3
+
+
+#: The multistart's families (:func:`initial_guess`), spanning the gait families seen in this problem:
+#: stance knee straight or flexed, low or high swing, torso upright or leaning, slow or fast vault.
+START_FAMILIES = (
+    StartFamily("straight stance"),
+    StartFamily("flexed stance", stance_knee=0.25),
+    StartFamily("high swing", swing_lift=0.9),
+    StartFamily("low swing, fast vault", swing_lift=0.3, rate_factor=1.7),
+    StartFamily("leaning torso", torso_pitch=0.15, stance_knee=0.1),
+    StartFamily("slow vault, flexed", stance_knee=0.15, swing_lift=0.7, rate_factor=1.0),
+)
+
 
 def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 0.29,
-                  swing_lift: float = 0.5) -> jax.Array:
-    """A heuristic start: straight legs mirrored about the vertical, swing knee and hip flexed mid-step,
-    stance leg vaulting at the walking speed's rate. Shape (2 + 4 n,)."""
+                  swing_lift: float | None = None, family: StartFamily = START_FAMILIES[0]) -> jax.Array:
+    """A heuristic start of ``family``: legs mirrored about the vertical at the ends, the swing knee and
+    hip flexed mid-step, the stance knee flexed mid-stance, the stance leg vaulting forward. The curve
+    is sampled at the Greville abscissae. Shape (settings.size,)."""
+    lift = family.swing_lift if swing_lift is None else swing_lift
     stance = -jnp.arcsin(0.5 * model.step_length / leg_length)
-    start = jnp.stack([stance, 0.0, -stance, 0.0])  # (H1, K1, H2, K2), torso upright
+    # (H1, K1, H2, K2): a hip angle is the thigh against the torso, so leaning the torso forward by
+    # ``torso_pitch`` flexes both hips by it.
+    start = jnp.stack([stance, 0.0, -stance, 0.0]) + family.torso_pitch * jnp.array([-1.0, 0.0, -1.0, 0.0])
     end = start[SWAP]
-    s = jnp.linspace(0.0, 1.0, settings.degree + 1)[1:, None]
-    bump = 4 * s * (1 - s) * swing_lift * jnp.array([0.0, 0.0, -0.6, 1.0])
+    s = jnp.asarray(greville(settings))[1:, None]
+    bump = 4 * s * (1 - s) * (lift * jnp.array([0.0, 0.0, -0.6, 1.0])
+                              + family.stance_knee * jnp.array([0.5, 1.0, 0.0, 0.0]))
     coefficients = start + s * (end - start) + bump
-    rate = 1.3 * model.speed / leg_length
+    rate = family.rate_factor * model.speed / leg_length
     return jnp.concatenate([jnp.stack([stance, rate]), coefficients.ravel()])
+
+
+def project(x: np.ndarray, source: GaitSettings, target: GaitSettings, samples: int = 400) -> np.ndarray:
+    """The decision vector of ``source``'s space carried into ``target``'s (continuation from a coarse
+    to a fine reference space): the stance state as it is, the control points by least squares on
+    ``samples`` points. Exact when the target's breakpoints contain the source's (the same grading,
+    spans a multiple), since the fine space then contains the coarse curve. Shape (target.size,)."""
+    x = np.asarray(x, dtype=float)
+    s = np.linspace(0.0, 1.0, samples)
+    curve = np.asarray(reference(jnp.asarray(x), source, s)[0])
+    points = np.linalg.lstsq(basis(target, s)[0], curve, rcond=None)[0]
+    points[-1] = 0.5 * (points[-1] + points[0][SWAP])  # keep the mirror exact
+    return np.concatenate([x[:2], points[1:].ravel()])

@@ -24,19 +24,21 @@ def joint_statistics(solution: GaitSolution, impact_window: float = IMPACT_WINDO
     """Per joint: mean and max |velocity| (rpm), max |acceleration| (rad/s^2), mean and max |torque|
     (N m), mean and max |power| (W), and the maxima outside ``impact_window`` x t_f of either end."""
     tr = solution.trajectory
-    speed = np.abs(np.asarray(tr.qd)[:-1, ACTUATED_INDEX])
+    speed = np.abs(np.asarray(tr.qd)[:, ACTUATED_INDEX])
     acceleration = np.abs(np.asarray(tr.qdd)[:, ACTUATED_INDEX])
     torque = np.abs(np.asarray(tr.u))
     power = np.abs(speed * torque)
-    s = np.asarray(tr.t)[:-1] / solution.step_time_s
+    # time averages by the trajectory's own quadrature (the grid is finer near the impacts)
+    weights = np.asarray(tr.weights) / solution.step_time_s
+    s = np.asarray(tr.t) / solution.step_time_s
     inside = (s >= impact_window) & (s <= 1 - impact_window)
     stats = {}
     for k, joint in enumerate(JOINTS):
         stats[joint] = {
-            "vel_mean_rpm": float(speed[:, k].mean() / RPM), "vel_max_rpm": float(speed[:, k].max() / RPM),
+            "vel_mean_rpm": float(weights @ speed[:, k] / RPM), "vel_max_rpm": float(speed[:, k].max() / RPM),
             "acc_max": float(acceleration[:, k].max()),
-            "torque_mean": float(torque[:, k].mean()), "torque_max": float(torque[:, k].max()),
-            "power_mean": float(power[:, k].mean()), "power_max": float(power[:, k].max()),
+            "torque_mean": float(weights @ torque[:, k]), "torque_max": float(torque[:, k].max()),
+            "power_mean": float(weights @ power[:, k]), "power_max": float(power[:, k].max()),
             "vel_max_rpm_outside_impacts": float(speed[inside, k].max() / RPM),
             "torque_max_outside_impacts": float(torque[inside, k].max()),
             "power_max_outside_impacts": float(power[inside, k].max()),
@@ -60,6 +62,8 @@ def results_record(solution: GaitSolution) -> dict:
         "max_vertical_force_N": float(np.max(np.asarray(tr.ground_force)[:, 1])),
         "impact_impulse_Ns": np.asarray(tr.touchdown.impulse).tolist(),
         "impact_window_fraction": IMPACT_WINDOW,
+        "refinement": solution.refinement,
+        "starts": solution.starts,
         "decision_vector": np.asarray(solution.x).tolist(),
     }
 
@@ -85,6 +89,15 @@ def markdown_table(solution: GaitSolution) -> str:
               f"L = {solution.step_length_m:g} m, max. vertical contact force = {force:.1f} N, "
               f"largest violation = {solution.max_violation:.1e} (own units), "
               f"{solution.gradients} gradients", ""]
+    if solution.refinement:
+        check = solution.refinement
+        lines += [f"Refinement check ({check['steps']} steps, same decision vector): J = {check['cost']:.4g} "
+                  f"({100 * check['cost_change']:.3f} % change), power {100 * check['power_margin_fraction']:.2f} % "
+                  f"of M_W over the limit at most, " + ("passed" if check["passed"] else
+                                                         "FAILED: " + ", ".join(check["failed"])), ""]
+    if solution.starts:
+        costs = [f"{row['cost']:.4g} ({row['status']})" for row in solution.starts]
+        lines += [f"Starts (coarse space): {', '.join(costs)}", ""]
     return "\n".join(lines)
 
 
@@ -113,8 +126,8 @@ def plot_figure_2(solutions: list[GaitSolution], path: Path,
         for k, joint in enumerate(JOINTS):
             axes[0, k].plot(t, q[:, k], style, label=solution.name)
             axes[1, k].plot(t, qd[:, k] / RPM, style)
-            axes[2, k].plot(t[:-1], u[:, k], style)
-            axes[3, k].plot(t[:-1], qd[:-1, k] * u[:, k], style)
+            axes[2, k].plot(t, u[:, k], style)
+            axes[3, k].plot(t, qd[:, k] * u[:, k], style)
             axes[0, k].set_title(joint)
     for row, label in enumerate(("angle [rad]", "velocity [rpm]", "torque [N m]", "power [W]")):
         axes[row, 0].set_ylabel(label)
@@ -134,7 +147,7 @@ def plot_figure_3(solutions: list[GaitSolution], path: Path) -> None:
     figure, axes = plt.subplots(1, 4, figsize=(15, 4), constrained_layout=True)
     for solution in solutions:
         tr = solution.trajectory
-        speed = np.abs(np.asarray(tr.qd)[:-1, ACTUATED_INDEX]) / RPM
+        speed = np.abs(np.asarray(tr.qd)[:, ACTUATED_INDEX]) / RPM
         torque = np.abs(np.asarray(tr.u))
         for k, joint in enumerate(JOINTS):
             axes[k].plot(speed[:, k], torque[:, k], STYLES.get(solution.name, "-"), marker=".",

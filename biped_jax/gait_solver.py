@@ -1,8 +1,11 @@
 """Solving gait problems: many models in one batched augmented-Lagrangian call, with status.
 
-A solve is `converged` only when the solver converged *and* every constraint group's violation is at
-most :data:`VIOLATION_TOLERANCE` in its own unit (m, rad, rad/s, N, N m, W, N s) on a fresh
-re-simulation of the solution.
+A solve is `converged` only when the solver converged, every constraint group's violation is at most
+:data:`VIOLATION_TOLERANCE` in its own unit (m, rad, rad/s, N, N m, W, N s) on a fresh re-simulation
+of the solution, *and* the solution passes the refinement check: re-simulated with the same decision
+vector on a grid :data:`biped_jax.gait.REFINEMENT` times finer, J changes by less than
+:data:`REFINED_COST_CHANGE` and every group stays within :func:`refined_tolerance`. Otherwise the
+status is :data:`GRID_DEPENDENT`.
 """
 
 from __future__ import annotations
@@ -22,6 +25,24 @@ from biped_jax.robot_specs import PLANAR_SPECS
 
 #: Largest violation accepted, in each constraint group's own unit.
 VIOLATION_TOLERANCE = 1e-4
+
+#: Status of a solution that converged on its grid but fails the refinement check.
+GRID_DEPENDENT = "grid dependent"
+#: Largest relative change of J between the solution's grid and the refined one.
+REFINED_COST_CHANGE = 5e-3
+#: Largest violation on the refined grid per unit (power: a fraction of M_W, see refined_tolerance).
+_REFINED_TOLERANCE = {"m": 1e-4, "rad": 1e-3, "rad/s": 1e-3, "m/s": 1e-3, "N": 1.0, "N m": 0.05,
+                      "N s": 1e-3, "V": 0.1}
+REFINED_POWER_FRACTION = 0.01
+
+
+def refined_tolerance(group: str, power_limit: float) -> float:
+    """The refinement check's tolerance for a constraint group, in the group's own unit: 1 % of M_W for
+    the power limit, 1 N for forces, 1e-3 rad/s for rates, 0.1 mm for lengths, 1e-3 rad for angles."""
+    if group == "power_limit":
+        return REFINED_POWER_FRACTION * power_limit
+    return _REFINED_TOLERANCE[gait.CONSTRAINT_GROUPS[group][1]]
+
 
 #: Solver settings for the gait: scaled tolerance 1e-5 keeps every group below 1e-4 in its own unit
 #: (the scales in ``biped_jax.gait`` are at most 10 own units per scaled unit).
@@ -49,6 +70,10 @@ class GaitSolution:
       history: per outer iteration: cost, scaled violation, penalty, gradients.
       multipliers_eq, multipliers_in: the solver's final multiplier estimates of the scaled
         constraints (see :func:`biped_jax.augmented_lagrangian.optimal_value_gradient`).
+      refinement: the refinement check (:func:`refinement_record`): J and violations on a grid
+        ``gait.REFINEMENT`` times finer, the same decision vector.
+      starts: from :func:`solve_multistart`, every start's family, status and cost in the coarse
+        space (the spread over starts: does the optimum look unique?).
     """
 
     name: str
@@ -70,6 +95,25 @@ class GaitSolution:
     history: list
     multipliers_eq: np.ndarray
     multipliers_in: np.ndarray
+    refinement: dict = dataclasses.field(default_factory=dict)
+    starts: list = dataclasses.field(default_factory=list)
+
+
+def refinement_record(coarse_cost: float, fine: gait.GaitTrajectory, model: gait.GaitModel,
+                      settings: gait.GaitSettings) -> dict:
+    """The refinement check of one solution: J and each group's violation on the finer grid
+    ``settings`` (the same decision vector), and whether it passes."""
+    groups = gait.violations(gait.constraint_groups(fine, model, settings))
+    violations = {k: float(v) for k, v in groups.items()}
+    cost = float(gait.cost(fine))
+    change = abs(cost - coarse_cost) / max(abs(coarse_cost), 1e-12)
+    limit = float(model.power_limit)
+    failed = sorted(k for k, v in violations.items() if not v <= refined_tolerance(k, limit))
+    if not change <= REFINED_COST_CHANGE:
+        failed.insert(0, "cost")
+    return {"steps": settings.steps, "cost": cost, "cost_change": change, "violations": violations,
+            "power_margin_fraction": violations["power_limit"] / limit, "failed": failed,
+            "passed": not failed}
 
 
 class GaitSolver:
@@ -79,6 +123,7 @@ class GaitSolver:
                  options: al.SolverOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg"):
         self.settings, self.options = settings, options
         self.biped = hs.load_planar_biped(mass_class_template)  # designs replace its masses
+        self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
         biped, settings_ = self.biped, settings
 
         def residuals(x, model):
@@ -90,6 +135,9 @@ class GaitSolver:
         self.problem = al.ConstrainedProblem.from_residuals(residuals)
         self.compiled = al.compile_problem(self.problem)
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
+        self.refined_settings = gait.refined(settings)
+        self._simulate_refined = jax.jit(jax.vmap(functools.partial(
+            gait.simulate, biped=biped, settings=self.refined_settings)))
         self._initial_guess = jax.jit(jax.vmap(functools.partial(
             gait.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
 
@@ -112,16 +160,21 @@ class GaitSolver:
         result = al.solve(self.problem, x0, batch, self.options, compiled=self.compiled,
                           progress=progress)
         trajectories = self.simulate(jnp.asarray(result.x), batch)
+        refined = self._simulate_refined(jnp.asarray(result.x), batch)
         solutions = []
         for b, (name, model) in enumerate(zip(names, models)):
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
             groups = gait.constraint_groups(trajectory, model, self.settings)
             violations = {k: float(v) for k, v in gait.violations(groups).items()}
             status = result.status[b]
+            refinement = refinement_record(float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined),
+                                           model, self.refined_settings)
             if not np.all(np.isfinite(result.x[b])) or not np.all(np.isfinite(trajectory.u)):
                 status = al.DIVERGED
             elif status == al.CONVERGED and max(violations.values()) > VIOLATION_TOLERANCE:
                 status = al.ITERATION_LIMIT  # feasible only in the scaled sense: keep iterating
+            elif status == al.CONVERGED and not refinement["passed"]:
+                status = GRID_DEPENDENT
             solutions.append(GaitSolution(
                 name=name, mass_kg=float(model.design.total_mass), speed_mps=float(model.speed),
                 power_limit_W=float(model.power_limit), step_length_m=float(model.step_length),
@@ -131,5 +184,44 @@ class GaitSolver:
                 outer_iterations=int(result.outer_iterations[b]), gradients=int(result.gradients[b]),
                 wall_time_s=result.wall_time_s, x=np.asarray(result.x[b]), trajectory=trajectory,
                 history=[{k: float(v[b]) for k, v in row.items() if k != "x"} for row in result.history],
-                multipliers_eq=result.multipliers_eq[b], multipliers_in=result.multipliers_in[b]))
+                multipliers_eq=result.multipliers_eq[b], multipliers_in=result.multipliers_in[b],
+                refinement=refinement))
         return solutions
+
+
+def coarse_settings(settings: gait.GaitSettings, factor: int = 4) -> gait.GaitSettings:
+    """The reference space ``factor`` times coarser (fewer knot spans, the same grading, so the fine
+    space contains it when ``spans`` is a multiple of ``factor``), on a grid with as many steps per
+    span: the continuation's first stage."""
+    return dataclasses.replace(settings, spans=max(1, settings.spans // factor))
+
+
+def solve_multistart(fine: GaitSolver, coarse: GaitSolver, names: list[str], models: list[gait.GaitModel],
+                     families=gait.START_FAMILIES, progress: Callable[[str, int, dict], None] | None = None
+                     ) -> list[GaitSolution]:
+    """Globalisation by many starts and continuation in the reference space.
+
+    Stage 1: every model from every heuristic family in ``families`` (:data:`gait.START_FAMILIES`),
+    all in one batch of the coarse space, where the landscape is smoother. Stage 2: per model the best
+    converged start (else the least violated) carried into the fine space (:func:`gait.project`) and
+    solved there, all models in one batch. Each returned solution lists every start's outcome in
+    ``starts``. No start comes from anywhere but the product's own heuristics.
+    """
+    count = len(families)
+    x0 = jnp.stack([gait.initial_guess(m, coarse.settings, fine.leg_length, family=f)
+                    for m in models for f in families])
+    tagged = (lambda stage: (lambda i, row: progress(stage, i, row))) if progress else (lambda stage: None)
+    first = coarse.solve([f"{n} / {f.name}" for n in names for f in families],
+                         [m for m in models for _ in families], x0=x0, progress=tagged("starts"))
+    chosen, spreads = [], []
+    for b in range(len(models)):
+        group = first[b * count:(b + 1) * count]
+        spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation}
+                        for f, s in zip(families, group)])
+        feasible = [s for s in group if s.status in (al.CONVERGED, GRID_DEPENDENT)]
+        best = min(feasible, key=lambda s: s.cost) if feasible else min(group, key=lambda s: s.max_violation)
+        chosen.append(gait.project(best.x, coarse.settings, fine.settings))
+    solutions = fine.solve(names, models, x0=jnp.asarray(np.stack(chosen)), progress=tagged("refined space"))
+    for solution, spread in zip(solutions, spreads):
+        solution.starts = spread
+    return solutions

@@ -115,8 +115,7 @@ def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
     (then it cannot phase the gait)."""
     x = np.asarray(x)
     phase = np.linspace(0.0, 1.0, PHASE_SAMPLES)
-    coefficients = np.asarray(gait.bezier_coefficients(jnp.asarray(x), settings))
-    joints = np.asarray(gait.bezier(coefficients, phase))
+    joints = np.asarray(gait.reference(jnp.asarray(x), settings, phase)[0])
     step_time = float(model.step_length / model.speed)
     grid = np.asarray(trajectory.t) / step_time
     theta = np.asarray(trajectory.q)[:, 0]
@@ -126,13 +125,13 @@ def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
     rate = np.asarray(trajectory.qd)[:, 0] * step_time
     joints = joints + clearance_offset(model, np.asarray(trajectory.q), grid, phase, mass_class)
     joint_slope = np.gradient(joints, phase, axis=0)
-    # the optimiser holds u_k over [t_k, t_k+1): sample that zero-order hold
+    # the gait's torques are samples of a continuous trajectory at its grid points: interpolate them
     u = np.asarray(trajectory.u)
-    held = np.minimum((phase * len(u)).astype(int), len(u) - 1)
+    torque = np.column_stack([np.interp(phase, grid, u[:, k]) for k in range(u.shape[1])])
     return GaitReference(phase=jnp.asarray(phase), stance_angle=jnp.asarray(np.interp(phase, grid, theta)),
                          stance_angle_slope=jnp.asarray(np.interp(phase, grid, rate)),
                          joints=jnp.asarray(joints), joint_slope=jnp.asarray(joint_slope),
-                         torque=jnp.asarray(u[held]), step_time=jnp.asarray(step_time),
+                         torque=jnp.asarray(torque), step_time=jnp.asarray(step_time),
                          speed=jnp.asarray(float(model.speed)))
 
 

@@ -3,6 +3,7 @@ contact in MJX; report, figures and a replay file."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Callable
@@ -127,7 +128,7 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
     mj_model, layout = humanoid.contact_model(mass_class)
     report = humanoid.walk_report(run, mj_model, layout, reference, humanoid.DEFAULT_GAINS)
     report.update({"model": name, "mass_class": mass_class, "gait_status": status,
-                   "gait_settings": {"steps": settings.steps, "degree": settings.degree},
+                   "gait_settings": dataclasses.asdict(settings),
                    "steps_commanded": steps})
     (out / "humanoid.json").write_text(json.dumps(report, indent=2))
     com = centre_of_mass(mj_model, run.qpos)

@@ -1,10 +1,10 @@
 """The gait rollout of ``biped_jax.gait`` computed with MuJoCo C instead of MJX.
 
-The same step (Bezier references tracked by collocated partial feedback linearisation, semi-implicit
-Euler, inelastic impact, relabelling) with the physics in MuJoCo's C library and the impact map in
-numpy. Two uses: the tests compare it with the MJX rollout (MJX against MuJoCo C on the optimiser's
-own trajectories), and the gradient benchmark uses it, with central finite differences, as the
-baseline a user without MJX would have.
+The same step (B-spline joint references prescribed, the stance angle's zero dynamics by classical
+Runge-Kutta, torques from the actuated rows, inelastic impact, relabelling) with the physics in
+MuJoCo's C library and the impact map in numpy. Two uses: the tests compare it with the MJX rollout
+(MJX against MuJoCo C on the optimiser's own trajectories), and the gradient benchmark uses it, with
+central finite differences, as the baseline a user without MJX would have.
 
 Not differentiable and not batched; one :class:`CGaitRollout` per process.
 """
@@ -26,59 +26,71 @@ class CGaitRollout:
         self.settings = settings
         self.pinned = robots.load_mj_model(f"biped5_pinned_{mass_class}")
         self.floating = robots.load_mj_model(f"biped5_floating_{mass_class}")
-        # The commanded acceleration must be met exactly (as in gait._pinned_model).
-        self.pinned.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_EULERDAMP
         self.pinned_data = mujoco.MjData(self.pinned)
         self.floating_data = mujoco.MjData(self.floating)
         self._sites = [self.pinned.site(name).id for name in ("foot2", "hip", "knee1", "knee2")]
         self._mass = np.zeros((self.pinned.nv, self.pinned.nv))
         self._floating_mass = np.zeros((self.floating.nv, self.floating.nv))
 
-    def simulate(self, x: np.ndarray, speed: float, step_length: float) -> gait.GaitTrajectory:
-        """The step of decision vector ``x`` (shape (2 + 4 n,)) at ``speed`` m/s over ``step_length`` m;
-        arrays as in :class:`biped_jax.gait.GaitTrajectory` (numpy)."""
-        m, d, settings = self.pinned, self.pinned_data, self.settings
-        step_time = step_length / speed
-        dt = step_time / settings.steps
-        m.opt.timestep = dt
-        coefficients = np.asarray(gait.bezier_coefficients(np.asarray(x), settings))
-        s = np.linspace(0.0, 1.0, settings.steps + 1)
-        reference = gait.bezier(coefficients, s)
-        actuated = gait.ACTUATED_INDEX
-        q = np.zeros(m.nq)
-        q[0], q[actuated] = x[0], reference[0]
-        qd = np.zeros(m.nv)
-        qd[0], qd[actuated] = x[1], gait.bezier_rate(coefficients, s[:1])[0] / step_time
-        rows = {name: [] for name in ("q", "qd", "qdd", "u", "force", "sites")}
-        rows["q"].append(q.copy())
-        rows["qd"].append(qd.copy())
-        for target in reference[1:]:
-            d.qpos[:], d.qvel[:] = q, qd
-            mujoco.mj_fwdPosition(m, d)
-            mujoco.mj_fwdVelocity(m, d)
-            rows["sites"].append(d.site_xpos[self._sites].copy())
-            mujoco.mj_fullM(m, d, self._mass)
-            desired = ((target - q[actuated]) / dt - qd[actuated]) / dt
-            u = gait.feedback_linearising_torque(self._mass, d.qfrc_bias - d.qfrc_passive, desired)
-            d.ctrl[:] = u
-            mujoco.mj_fwdActuation(m, d)
-            mujoco.mj_fwdAcceleration(m, d)
-            d.qacc[:] = d.qacc_smooth  # no contacts or limits in the pinned chain
-            mujoco.mj_rnePostConstraint(m, d)
-            rows["force"].append(d.cfrc_int[hs._STANCE_BODY, [3, 5]].copy())
-            mujoco.mj_Euler(m, d)
-            q, qd = d.qpos.copy(), d.qvel.copy()
-            for name, value in (("q", q), ("qd", qd), ("qdd", d.qacc), ("u", u)):
-                rows[name].append(np.array(value))
+    def _terms(self, q: np.ndarray, qd: np.ndarray):
+        """Mass matrix and bias (qfrc_bias - qfrc_passive) at (q, qd); leaves the data's positions and
+        velocities current."""
+        m, d = self.pinned, self.pinned_data
         d.qpos[:], d.qvel[:] = q, qd
         mujoco.mj_fwdPosition(m, d)
-        rows["sites"].append(d.site_xpos[self._sites].copy())
+        mujoco.mj_fwdVelocity(m, d)
+        mujoco.mj_fullM(m, d, self._mass)
+        return self._mass.copy(), d.qfrc_bias - d.qfrc_passive
+
+    def _acceleration(self, theta: float, rate: float, ref) -> float:
+        q, qd = self._assemble(theta, ref[0]), self._assemble(rate, ref[1])
+        mass, bias = self._terms(q, qd)
+        return float(gait.stance_acceleration(mass, bias, ref[2]))
+
+    @staticmethod
+    def _assemble(theta, actuated) -> np.ndarray:
+        full = np.zeros(5)
+        full[0], full[gait.ACTUATED_INDEX] = theta, actuated
+        return full
+
+    def simulate(self, x: np.ndarray, speed: float, step_length: float) -> gait.GaitTrajectory:
+        """The step of decision vector ``x`` (shape (settings.size,)) at ``speed`` m/s over
+        ``step_length`` m; arrays as in :class:`biped_jax.gait.GaitTrajectory` (numpy)."""
+        m, d, settings = self.pinned, self.pinned_data, self.settings
+        x = np.asarray(x, dtype=float)
+        step_time = step_length / speed
+        s = gait.grid(settings)
+        scale = np.array([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
+        at_grid = np.stack([np.asarray(r) for r in gait.reference(x, settings, s)]) * scale
+        at_mid = np.stack([np.asarray(r) for r in gait.reference(x, settings, 0.5 * (s[1:] + s[:-1]))]) * scale
+        theta, rate = [x[0]], [x[1]]
+        for k, dt in enumerate(np.diff(s) * step_time):  # classical Runge-Kutta on the zero dynamics
+            y = np.array([theta[-1], rate[-1]])
+            f = lambda y_, ref: np.array([y_[1], self._acceleration(y_[0], y_[1], ref)])  # noqa: E731
+            k1 = f(y, at_grid[:, k])
+            k2 = f(y + 0.5 * dt * k1, at_mid[:, k])
+            k3 = f(y + 0.5 * dt * k2, at_mid[:, k])
+            k4 = f(y + dt * k3, at_grid[:, k + 1])
+            y = y + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            theta.append(y[0])
+            rate.append(y[1])
+        rows = {name: [] for name in ("q", "qd", "qdd", "u", "force", "sites")}
+        for k in range(len(s)):
+            q, qd = self._assemble(theta[k], at_grid[0, k]), self._assemble(rate[k], at_grid[1, k])
+            mass, bias = self._terms(q, qd)
+            qdd = self._assemble(gait.stance_acceleration(mass, bias, at_grid[2, k]), at_grid[2, k])
+            rows["sites"].append(d.site_xpos[self._sites].copy())
+            d.qacc[:] = qdd  # no contacts or limits in the pinned chain
+            mujoco.mj_rnePostConstraint(m, d)
+            rows["force"].append(d.cfrc_int[hs._STANCE_BODY, [3, 5]].copy())
+            for name, value in (("q", q), ("qd", qd), ("qdd", qdd), ("u", gait.actuated_torque(mass, bias, qdd))):
+                rows[name].append(np.array(value))
         positions = np.stack(rows["sites"])
         foot_velocity = self._site_velocity(m, d, "foot2", qd)
         return gait.GaitTrajectory(
-            t=dt * np.arange(settings.steps + 1), q=np.stack(rows["q"]), qd=np.stack(rows["qd"]),
-            qdd=np.stack(rows["qdd"]), u=np.stack(rows["u"]), ground_force=np.stack(rows["force"]),
-            swing_foot=positions[:, 0, [0, 2]], heights=positions[:, 1:, 2],
+            t=s * step_time, weights=gait.simpson_weights(settings) * step_time, q=np.stack(rows["q"]),
+            qd=np.stack(rows["qd"]), qdd=np.stack(rows["qdd"]), u=np.stack(rows["u"]),
+            ground_force=np.stack(rows["force"]), swing_foot=positions[:, 0, [0, 2]], heights=positions[:, 1:, 2],
             touchdown=self._touchdown(q, qd, d), swing_foot_velocity=foot_velocity[[0, 2]])
 
     @staticmethod

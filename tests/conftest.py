@@ -14,6 +14,12 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+def short_settings():
+    """The tests' reference space and grid: 4 cubic knot spans, 4 Runge-Kutta steps each."""
+    from biped_jax import gait
+    return gait.GaitSettings(spans=4, substeps=4)
+
+
 @pytest.fixture(scope="session")
 def biped12():
     from biped_jax import hybrid_step
@@ -35,14 +41,15 @@ def rollout():
 
 @pytest.fixture(scope="session")
 def short_solver():
-    """The gait solver at the tests' short horizon (20 Euler steps, Bezier degree 5): the same code as
-    the study; every test that solves gaits shares its compiled programs."""
-    from biped_jax import gait, gait_solver
-    return gait_solver.GaitSolver(gait.GaitSettings(steps=20, degree=5))
+    """The gait solver at the tests' short horizon (:data:`TEST_SETTINGS`): the same code as the study;
+    every test that solves gaits shares its compiled programs."""
+    from biped_jax import gait_solver
+    return gait_solver.GaitSolver(short_settings())
 
 
 @pytest.fixture(scope="session")
 def paper_solutions(short_solver):
-    """M1-M4 in one batch (the same compiled program as `biped-jax reproduce --steps 20 --degree 5`)."""
+    """M1-M4 in one batch from the default start family (the program `biped-jax reproduce --spans 4
+    --substeps 4` compiles for its refined-space stage)."""
     from biped_jax import study
     return short_solver.solve([r.name for r in study.PAPER_MODELS], study._models(study.PAPER_MODELS))

@@ -57,7 +57,7 @@ def test_reproduce_writes_the_study(tmp_path):
     """The main job at a short horizon with the planar-chain dynamics (equal to MJX's,
     tests/test_planar_chain.py; several times faster): files exist and results.json is consistent
     with itself."""
-    assert cli.main(["reproduce", "--out", str(tmp_path), "--steps", "20", "--degree", "5",
+    assert cli.main(["reproduce", "--out", str(tmp_path), "--spans", "4", "--substeps", "4",
                      "--bisections", "1", "--dynamics", "chain"]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["settings"]["dynamics"] == "chain"
@@ -92,4 +92,4 @@ def test_donald_command_writes_its_report(tmp_path):
 
 def test_reproduce_rejects_bad_settings():
     with pytest.raises(SystemExit):
-        cli.main(["reproduce", "--steps", "0"])
+        cli.main(["reproduce", "--spans", "0"])

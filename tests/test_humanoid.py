@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from conftest import short_settings
 from test_humanoid_sagittal import _sagittal_equivalent
 
 from biped_jax import gait, humanoid, robots
@@ -89,8 +90,7 @@ def test_reference_follows_the_simulated_gait(m2_reference):
     theta = np.interp(phase, np.asarray(reference.phase), np.asarray(reference.stance_angle))
     np.testing.assert_allclose(theta, np.asarray(tr.q)[:, 0], atol=1e-3)
     # the stance leg's path is the optimiser's (only the swing foot's clearance is added)
-    coefficients = gait.bezier_coefficients(jnp.asarray(x), settings)
-    optimal = np.asarray(gait.bezier(coefficients, jnp.asarray(reference.phase)))
+    optimal = np.asarray(gait.reference(jnp.asarray(x), settings, np.asarray(reference.phase))[0])
     np.testing.assert_allclose(np.asarray(reference.joints)[:, :2], optimal[:, :2], atol=1e-12)
     swing_offset = np.abs(np.asarray(reference.joints)[:, 2:] - optimal[:, 2:])
     # none at the start (the swing foot leaves the ground); bounded elsewhere (the heuristic's foot even
@@ -126,7 +126,7 @@ def test_bad_input_is_rejected(m2_reference, paper_solutions):
     assert np.any(np.diff(solution.trajectory.q[:, 0]) < 0)
     model = gait.gait_model("12kg", solution.speed_mps, solution.power_limit_W)
     with pytest.raises(ValueError, match="monotonically"):
-        humanoid.gait_reference(solution.x, model, gait.GaitSettings(steps=20, degree=5), solution.trajectory)
+        humanoid.gait_reference(solution.x, model, short_settings(), solution.trajectory)
 
 
 def test_control_law_is_feed_forward_plus_pd_on_the_phased_reference(m2_reference, planarised):
