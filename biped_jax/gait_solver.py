@@ -116,12 +116,34 @@ def refinement_record(coarse_cost: float, fine: gait.GaitTrajectory, model: gait
             "passed": not failed}
 
 
+def classify(solver_status: str, finite: bool, violations: dict, refinement: dict,
+             require_refinement: bool = True) -> str:
+    """The reported status of one solve: ``diverged`` for a NaN anywhere, ``iteration limit`` when the
+    solver's scaled feasibility is not met in every group's own unit, :data:`GRID_DEPENDENT` when it
+    converged on its grid but fails the refinement check (unless ``require_refinement`` is off), else
+    the solver's own status."""
+    if not finite:
+        return al.DIVERGED
+    if solver_status == al.CONVERGED and max(violations.values()) > VIOLATION_TOLERANCE:
+        return al.ITERATION_LIMIT  # feasible only in the scaled sense: keep iterating
+    if solver_status == al.CONVERGED and require_refinement and not refinement["passed"]:
+        return GRID_DEPENDENT
+    return solver_status
+
+
 class GaitSolver:
-    """Compiles once per :class:`~biped_jax.gait.GaitSettings` and solves batches of models."""
+    """Compiles once per :class:`~biped_jax.gait.GaitSettings` and solves batches of models.
+
+    ``require_refinement=False`` reports the refinement check without letting it decide the status:
+    for the test suite's deliberately coarse grids (4 knot spans), where a gait solved on its grid is
+    what the tests need and the check's figures are still recorded. Every study uses the default.
+    """
 
     def __init__(self, settings: gait.GaitSettings = gait.GaitSettings(),
-                 options: al.SolverOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg"):
+                 options: al.SolverOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
+                 require_refinement: bool = True):
         self.settings, self.options = settings, options
+        self.require_refinement = require_refinement
         self.biped = hs.load_planar_biped(mass_class_template)  # designs replace its masses
         self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
         biped, settings_ = self.biped, settings
@@ -166,15 +188,10 @@ class GaitSolver:
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
             groups = gait.constraint_groups(trajectory, model, self.settings)
             violations = {k: float(v) for k, v in gait.violations(groups).items()}
-            status = result.status[b]
             refinement = refinement_record(float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined),
                                            model, self.refined_settings)
-            if not np.all(np.isfinite(result.x[b])) or not np.all(np.isfinite(trajectory.u)):
-                status = al.DIVERGED
-            elif status == al.CONVERGED and max(violations.values()) > VIOLATION_TOLERANCE:
-                status = al.ITERATION_LIMIT  # feasible only in the scaled sense: keep iterating
-            elif status == al.CONVERGED and not refinement["passed"]:
-                status = GRID_DEPENDENT
+            finite = bool(np.all(np.isfinite(result.x[b])) and np.all(np.isfinite(trajectory.u)))
+            status = classify(result.status[b], finite, violations, refinement, self.require_refinement)
             solutions.append(GaitSolution(
                 name=name, mass_kg=float(model.design.total_mass), speed_mps=float(model.speed),
                 power_limit_W=float(model.power_limit), step_length_m=float(model.step_length),

@@ -10,7 +10,7 @@ CATALOGUE = drives.load_catalogue()
 
 
 def _constant_workspace(torque=1.0, speed=5.0, samples=200):
-    t = np.linspace(0, 1, samples, endpoint=False)
+    t = np.linspace(0, 1, samples)  # the gait's samples include both ends of the step
     return ds.JointWorkspace(t=t, speed=np.full((samples, 1), speed), torque=np.full((samples, 1), torque),
                              step_time=1.0)
 
