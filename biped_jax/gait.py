@@ -262,16 +262,10 @@ def simpson_weights(settings: GaitSettings) -> np.ndarray:
 
 @functools.lru_cache(maxsize=64)
 def _basis_cached(knots: tuple, degree: int, points: tuple) -> tuple:
-    spline = BSpline(np.array(knots), np.eye(len(knots) - degree - 1), degree, extrapolate=False)
+    # extrapolate=True evaluates s = 1 on the last span (the limit from the left) instead of NaN
+    spline = BSpline(np.array(knots), np.eye(len(knots) - degree - 1), degree)
     s = np.clip(np.array(points), 0.0, 1.0)
-    matrices = [np.nan_to_num(spline(s))] + [np.nan_to_num(spline.derivative(n)(s)) for n in (1, 2)]
-    # BSpline is right-continuous; at s = 1 take the limit from the left
-    end = s >= 1.0
-    if np.any(end):
-        for n, matrix in enumerate(matrices):
-            fn = spline if n == 0 else spline.derivative(n)
-            matrix[end] = fn(np.nextafter(1.0, 0.0))
-    return tuple(matrices)
+    return (spline(s), spline.derivative(1)(s), spline.derivative(2)(s))
 
 
 def basis(settings: GaitSettings, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -356,14 +350,6 @@ def actuated_torque(mass, bias, qdd):
     """Torques (H1, K1, H2, K2) from the actuated rows of M qdd + bias = B u, (4,), N m."""
     a = ACTUATED_INDEX
     return mass[a] @ qdd + bias[a]
-
-
-def feedback_linearising_torque(mass, bias, desired):
-    """Torques (H1, K1, H2, K2) that give the actuated coordinates the accelerations ``desired``
-    (collocated partial feedback linearisation, Spong 1994): the unactuated row gives the stance
-    acceleration, the actuated rows the torques. mass (5, 5); bias (5,); desired (4,)."""
-    qdd = jnp.zeros(5, desired.dtype).at[0].set(stance_acceleration(mass, bias, desired))
-    return actuated_torque(mass, bias, qdd.at[ACTUATED_INDEX].set(desired))
 
 
 def _dynamics(biped, settings):

@@ -78,14 +78,9 @@ def refine(solution: GaitSolution, settings: gait.GaitSettings,
            progress: Callable[[int, dict], None] | None = None) -> GaitSolution:
     """Re-solves on a grid twice as fine, warm-started from ``solution`` (the decision vector does not
     depend on the grid)."""
-    solver = GaitSolver(fine_settings(settings), mass_class_template="kelly")
+    solver = GaitSolver(gait.refined(settings, 2), mass_class_template="kelly")
     fine, = solver.solve(["kelly"], [kelly_model()], x0=jnp.asarray(solution.x)[None], progress=progress)
     return fine
-
-
-def fine_settings(settings: gait.GaitSettings) -> gait.GaitSettings:
-    """The grid twice as fine as ``settings``' (same reference space)."""
-    return dataclasses.replace(settings, substeps=2 * settings.substeps)
 
 
 def kelly_record(solutions: list[GaitSolution], fine: GaitSolution, settings: gait.GaitSettings) -> dict:
@@ -98,12 +93,12 @@ def kelly_record(solutions: list[GaitSolution], fine: GaitSolution, settings: ga
     record.update({
         "benchmark": "Kelly 2017, five-link biped, SIAM Review 59(4) Section 7",
         "cost_unit": "N^2 m^2 s",
-        "steps": fine_settings(settings).steps,
+        "steps": gait.refined(settings, 2).steps,
         "cost_coarse": coarse.cost,
         "steps_coarse": settings.steps,
         "cost_refined": fine.refinement["cost"],
         "steps_refined": fine.refinement["steps"],
-        "active_constraints": active_constraints(fine, fine_settings(settings)),
+        "active_constraints": active_constraints(fine, gait.refined(settings, 2)),
         "settings": dataclasses.asdict(settings),
         "starts": [{"name": s.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation}
                    for s in solutions],
@@ -125,7 +120,7 @@ def run_kelly(out: Path, settings: gait.GaitSettings = KELLY_SETTINGS,
     say(f"compiling and solving Kelly's five-link biped on {settings.steps} Runge-Kutta steps from "
         f"{len(START_LIFTS)} starts in one batch")
     solutions = solve_kelly(settings, progress=report)
-    say(f"{solutions[0].status}, J = {solutions[0].cost:.2f}; refining on {fine_settings(settings).steps} steps")
+    say(f"{solutions[0].status}, J = {solutions[0].cost:.2f}; refining on {gait.refined(settings, 2).steps} steps")
     fine = refine(solutions[0], settings, progress=report)
     record = kelly_record(solutions, fine, settings)
     (out / "kelly.json").write_text(json.dumps(record, indent=2))

@@ -64,9 +64,9 @@ class CGaitRollout:
         at_grid = np.stack([np.asarray(r) for r in gait.reference(x, settings, s)]) * scale
         at_mid = np.stack([np.asarray(r) for r in gait.reference(x, settings, 0.5 * (s[1:] + s[:-1]))]) * scale
         theta, rate = [x[0]], [x[1]]
+        f = lambda y_, ref: np.array([y_[1], self._acceleration(y_[0], y_[1], ref)])  # noqa: E731
         for k, dt in enumerate(np.diff(s) * step_time):  # classical Runge-Kutta on the zero dynamics
             y = np.array([theta[-1], rate[-1]])
-            f = lambda y_, ref: np.array([y_[1], self._acceleration(y_[0], y_[1], ref)])  # noqa: E731
             k1 = f(y, at_grid[:, k])
             k2 = f(y + 0.5 * dt * k1, at_mid[:, k])
             k3 = f(y + 0.5 * dt * k2, at_mid[:, k])
