@@ -112,6 +112,8 @@ class SolverOptions:
       armijo: sufficient-decrease constant of the line search; max_backtracks halvings at most.
       precondition_every: inner iterations between refreshes of the Gauss-Newton preconditioner
         (problems with residuals only).
+      cap_first_step: keep optax's unit-length cap on the first L-BFGS step after each refresh;
+        False takes the full Gauss-Newton step there (problems with residuals only).
     """
 
     tolerance: float = 1e-6
@@ -125,6 +127,7 @@ class SolverOptions:
     armijo: float = 1e-4
     max_backtracks: int = 30
     precondition_every: int = 50
+    cap_first_step: bool = True
 
 
 @dataclasses.dataclass
@@ -249,7 +252,11 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     lagrangian = compiled.value_and_grad
     x = jnp.asarray(x0)
     batch, size = x.shape
-    optimiser = optax.scale_by_lbfgs(memory_size=options.memory)
+    # optax caps the first step of a fresh L-BFGS at unit length; in Gauss-Newton-preconditioned
+    # coordinates the identity is already the right scale and the cap can turn each restart into a
+    # short gradient step (see SolverOptions.cap_first_step).
+    optimiser = optax.scale_by_lbfgs(memory_size=options.memory,
+                                     scale_init_precond=options.cap_first_step or compiled.jacobian is None)
     init = jax.jit(jax.vmap(optimiser.init))
     direction_fn = jax.jit(jax.vmap(lambda g, s, x_: optimiser.update(g, s, x_)))
 

@@ -6,18 +6,24 @@ B-splines q_a(s) in normalised time s = t / t_f, with their analytic first and s
 Only the stance angle theta is integrated: its zero dynamics, the unactuated row of
 M(q) qdd + h(q, qd) = B u, solved for theta_dd given (q_a, qd_a, qdd_a), by classical Runge-Kutta
 (4th order) on a grid aligned with the spline's knots (``substeps`` equal steps per knot span, so the
-integrand is smooth inside every step and the method keeps its order). The torques are read from the
+integrand is smooth inside every step and the method keeps its order). The zero dynamics may be
+*multiple-shot* (``GaitSettings.segments`` > 1): every segment of knot spans starts from its own
+stance state (theta, theta_dot), a decision variable, and continuity of theta and theta_dot across
+segment boundaries is an equality constraint. Integrating the unstable stance pendulum open loop over
+the whole step keeps the collocation optimum out of reach (a fitted one drifted 0.1 rad by touchdown);
+over one span (about 1/16 of the step) it cannot drift. The torques are read from the
 actuated rows at each grid point, the cost J = integral of u^T u dt is taken by composite Simpson
 quadrature (4th order) and every path constraint is checked at every grid point, the start and the end
 included. The start state is the spline's own value and slope, so the state, the torque, the ground
-force and the power at t = 0 are those of a continuous trajectory (the old deadbeat Euler controller
-was not consistent at its first sample). Relabelling makes the first control point the mirror of the
-last, so the actuated positions are periodic by construction (hybrid zero dynamics, Westervelt et al.
-2003); the stance angle and all five rates are periodic through equality constraints.
+force and the power at t = 0 are those of a continuous trajectory. Relabelling makes the first control
+point the mirror of the last, so the actuated positions are periodic by construction (hybrid zero
+dynamics, Westervelt et al. 2003); the stance angle and all five rates are periodic through equality
+constraints.
 
-Decision vector x (shape (2 + 4 (spans + degree - 1),)): stance angle (rad) and rate (rad/s) at the
-start, then the B-spline control points 1..n of (H1, K1, H2, K2) in rad, n = spans + degree - 1
-(control point 0 mirrors control point n).
+Decision vector x (shape (2 segments + 4 (spans + degree - 1),)): stance angle (rad) and rate (rad/s)
+at the start, then the B-spline control points 1..n of (H1, K1, H2, K2) in rad, n = spans + degree - 1
+(control point 0 mirrors control point n), then the stance angle and rate at the start of segments
+1..segments-1 (the shooting nodes; none for single shooting).
 
 :func:`refined` gives the same problem on a grid ``REFINEMENT`` times finer; a solution is reported
 with its cost and violations there (:mod:`biped_jax.gait_solver`).
@@ -95,6 +101,10 @@ class GaitSettings:
       dynamics: "chain" (the closed-form planar-chain dynamics of :mod:`biped_jax.planar_chain`, equal
         to MJX's to rounding and several times faster to compile and differentiate) or "mjx" (MJX's
         forward pipeline). The touchdown impact map is MJX's in both.
+      segments: shooting segments of the stance angle's zero dynamics, dividing ``spans``: 1 is single
+        shooting from the start state; more start each segment (a run of spans / segments knot
+        spans) from its own stance state, a decision variable, with continuity as equality
+        constraints (multiple shooting: the unstable stance pendulum cannot drift over a segment).
 
     Raises ValueError naming the field, its value and the allowed range.
     """
@@ -107,6 +117,7 @@ class GaitSettings:
     friction: float = 0.8
     knee_max: float = 2.6
     dynamics: str = "chain"
+    segments: int = 1
 
     def __post_init__(self):
         if self.dynamics not in DYNAMICS:
@@ -114,6 +125,9 @@ class GaitSettings:
         _check_integer("spans", self.spans, 1, 200)
         _check_integer("degree", self.degree, 2, 7)
         _check_integer("substeps", self.substeps, 2, 400)
+        _check_integer("segments", self.segments, 1, self.spans)
+        if self.spans % self.segments:
+            raise ValueError(f"GaitSettings.segments must divide spans ({self.spans}), got {self.segments}")
         if self.substeps % 2:
             raise ValueError(f"GaitSettings.substeps must be even (Simpson's rule), got {self.substeps}")
         if isinstance(self.grading, bool) or not isinstance(self.grading, (int, float)) \
@@ -130,8 +144,9 @@ class GaitSettings:
 
     @property
     def size(self) -> int:
-        """Length of the decision vector."""
-        return 2 + 4 * (self.control_points - 1)
+        """Length of the decision vector: the stance state at every segment's start (the shooting
+        nodes, 2 segments) and the free control points of the four joints."""
+        return 2 * self.segments + 4 * (self.control_points - 1)
 
     @property
     def steps(self) -> int:
@@ -201,6 +216,8 @@ class GaitTrajectory:
         shape (T + 1, 3), m.
       touchdown: the impact at t_f and the next step's start.
       swing_foot_velocity: (x, z) at touchdown, shape (2,), m/s.
+      continuity: the multiple shooting's defects, shape (segments - 1, 2): the stance angle (rad)
+        and rate (rad/s) integrated to the end of segment j minus the node of segment j + 1.
     """
 
     t: jax.Array
@@ -214,6 +231,7 @@ class GaitTrajectory:
     heights: jax.Array
     touchdown: hs.Touchdown
     swing_foot_velocity: jax.Array
+    continuity: jax.Array
 
     @property
     def joint_speed(self) -> jax.Array:
@@ -275,8 +293,28 @@ def basis(settings: GaitSettings, s) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 def control_points(x: jax.Array, settings: GaitSettings) -> jax.Array:
     """All control points, shape (control_points, 4), rad: point 0 mirrors the last one."""
-    free = x[2:].reshape(settings.control_points - 1, 4)
+    free = x[2:2 + 4 * (settings.control_points - 1)].reshape(settings.control_points - 1, 4)
     return jnp.concatenate([free[-1, SWAP][None], free])
+
+
+def stance_nodes(x: jax.Array, settings: GaitSettings) -> jax.Array:
+    """The shooting nodes: stance angle (rad) and rate (rad/s) at the start of every segment,
+    shape (segments, 2); row 0 is the step's start state."""
+    later = x[2 + 4 * (settings.control_points - 1):].reshape(settings.segments - 1, 2)
+    return jnp.concatenate([x[None, :2], later])
+
+
+def segment_starts(settings: GaitSettings) -> np.ndarray:
+    """Normalised times of the shooting nodes, shape (segments,): every (spans / segments)-th
+    breakpoint, from 0."""
+    return breakpoints(settings)[:-1:settings.spans // settings.segments]
+
+
+def pack(stance: jax.Array, points: jax.Array) -> jax.Array:
+    """The decision vector from the shooting nodes (segments, 2) and the free control points
+    (control_points - 1, 4): the inverse of :func:`stance_nodes` and :func:`control_points`."""
+    stance, points = jnp.asarray(stance), jnp.asarray(points)
+    return jnp.concatenate([stance[0], points.ravel(), stance[1:].ravel()])
 
 
 def reference(x: jax.Array, settings: GaitSettings, s) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -358,10 +396,12 @@ def _dynamics(biped, settings):
 
 def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
     """One rollout of the step (pure; vmap over x and model): the prescribed joints, the stance
-    angle's zero dynamics by RK4, the outputs at every grid point."""
+    angle's zero dynamics by RK4 from every shooting node over its segment (all segments at once),
+    the outputs at every grid point (a segment's first point takes its node's state)."""
     biped = hs.with_design(biped, model.design)
     dynamics = _dynamics(biped, settings)
     step_time = model.step_length / model.speed
+    segments, per_segment = settings.segments, settings.steps // settings.segments
     s = grid(settings)
     midpoints = 0.5 * (s[1:] + s[:-1])
     scale = jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
@@ -383,13 +423,19 @@ def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: Ga
         k4 = (rate + dt * k3[1], acceleration(theta + dt * k3[0], rate + dt * k3[1], end))
         theta_next = theta + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
         rate_next = rate + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-        return (theta_next, rate_next), (theta_next, rate_next)
+        return (theta_next, rate_next), jnp.stack([theta_next, rate_next])
 
-    by_step = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (3, T, 4) -> (T, 3, 4)
-    _, (theta, rate) = jax.lax.scan(rk4, (x[0], x[1]), (by_step(at_grid[:, :-1]), by_step(at_mid),
-                                                        by_step(at_grid[:, 1:]), h))
-    theta = jnp.concatenate([x[:1], theta])
-    rate = jnp.concatenate([x[1:2], rate])
+    def by_segment(a):  # (3, T, 4) -> (segments, T / segments, 3, 4)
+        return jnp.swapaxes(a, 0, 1).reshape(segments, per_segment, 3, 4)
+
+    def shoot(node, starts, middles, ends, dt):
+        return jax.lax.scan(rk4, (node[0], node[1]), (starts, middles, ends, dt))[1]
+
+    nodes = stance_nodes(x, settings)
+    after = jax.vmap(shoot)(nodes, by_segment(at_grid[:, :-1]), by_segment(at_mid),
+                            by_segment(at_grid[:, 1:]), h.reshape(segments, per_segment))  # (segments, T / segments, 2)
+    stance = jnp.concatenate([jnp.concatenate([nodes[:, None], after[:, :-1]], axis=1).reshape(-1, 2),
+                              after[-1, -1:]])                            # (T + 1, 2)
 
     def outputs(theta_k, rate_k, ref):
         q, qd = _assemble(theta_k, ref[0]), _assemble(rate_k, ref[1])
@@ -398,19 +444,22 @@ def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: Ga
         force, positions = dynamics.outputs(q, qd, qdd, state)
         return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
 
-    q, qd, qdd, u, force, positions = jax.vmap(outputs)(theta, rate, by_step(at_grid))
+    q, qd, qdd, u, force, positions = jax.vmap(outputs)(stance[:, 0], stance[:, 1], jnp.swapaxes(at_grid, 0, 1))
     pinned = biped.pinned
     _, foot_velocity = hs.swing_foot(pinned, q[-1], qd[-1])
     return GaitTrajectory(
         t=jnp.asarray(s) * step_time, weights=jnp.asarray(simpson_weights(settings)) * step_time,
         q=q, qd=qd, qdd=qdd, u=u, ground_force=force, swing_foot=positions[:, 0], heights=positions[:, 1:, 1],
-        touchdown=hs.touchdown(biped, q[-1], qd[-1]), swing_foot_velocity=foot_velocity)
+        touchdown=hs.touchdown(biped, q[-1], qd[-1]), swing_foot_velocity=foot_velocity,
+        continuity=after[:-1, -1] - nodes[1:])
 
 
 # ----------------------------------------------------------------------------- constraints
 
 #: Constraint groups: name -> (kind, unit). Each group's violation is reported in its own unit.
 CONSTRAINT_GROUPS = {
+    "continuity_angle": ("equality", "rad"),
+    "continuity_rate": ("equality", "rad/s"),
     "touchdown_position": ("equality", "m"),
     "periodicity_angle": ("equality", "rad"),
     "periodicity_rate": ("equality", "rad/s"),
@@ -436,6 +485,8 @@ def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: Ga
     lx, lz = impact.impulse
     power = tr.joint_power
     return {
+        "continuity_angle": tr.continuity[:, 0],
+        "continuity_rate": tr.continuity[:, 1],
         "touchdown_position": jnp.array([tr.swing_foot[-1, 0] - model.step_length, tr.swing_foot[-1, 1]]),
         "periodicity_angle": impact.q[:1] - tr.q[0, :1],
         "periodicity_rate": impact.qd - tr.qd[0],
@@ -528,8 +579,9 @@ START_FAMILIES = (
 def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 0.29,
                   swing_lift: float | None = None, family: StartFamily = START_FAMILIES[0]) -> jax.Array:
     """A heuristic start of ``family``: legs mirrored about the vertical at the ends, the swing knee and
-    hip flexed mid-step, the stance knee flexed mid-stance, the stance leg vaulting forward. The curve
-    is sampled at the Greville abscissae. Shape (settings.size,)."""
+    hip flexed mid-step, the stance knee flexed mid-stance, the stance leg vaulting forward from
+    ``-asin(L / 2 l)`` to its mirror along a parabola whose start rate is the family's. The curve is
+    sampled at the Greville abscissae, the vault at the knot-span starts. Shape (settings.size,)."""
     lift = family.swing_lift if swing_lift is None else swing_lift
     stance = -jnp.arcsin(0.5 * model.step_length / leg_length)
     # (H1, K1, H2, K2): a hip angle is the thigh against the torso, so leaning the torso forward by
@@ -540,18 +592,36 @@ def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 
     bump = 4 * s * (1 - s) * (lift * jnp.array([0.0, 0.0, -0.6, 1.0])
                               + family.stance_knee * jnp.array([0.5, 1.0, 0.0, 0.0]))
     coefficients = start + s * (end - start) + bump
+    step_time = model.step_length / model.speed
     rate = family.rate_factor * model.speed / leg_length
-    return jnp.concatenate([jnp.stack([stance, rate]), coefficients.ravel()])
+    # theta(s) = stance (1 - 2 s) + curvature s (1 - s), with theta'(0) = rate t_f
+    curvature = rate * step_time + 2 * stance
+    knots = jnp.asarray(segment_starts(settings))
+    theta = stance * (1 - 2 * knots) + curvature * knots * (1 - knots)
+    theta_rate = (-2 * stance + curvature * (1 - 2 * knots)) / step_time
+    return pack(jnp.stack([theta, theta_rate], axis=-1), coefficients)
 
 
-def project(x: np.ndarray, source: GaitSettings, target: GaitSettings, samples: int = 400) -> np.ndarray:
+def project(x: np.ndarray, source: GaitSettings, target: GaitSettings, trajectory: GaitTrajectory,
+            samples: int = 400) -> np.ndarray:
     """The decision vector of ``source``'s space carried into ``target``'s (continuation from a coarse
-    to a fine reference space): the stance state as it is, the control points by least squares on
-    ``samples`` points. Exact when the target's breakpoints contain the source's (the same grading,
-    spans a multiple), since the fine space then contains the coarse curve. Shape (target.size,)."""
+    to a fine reference space): the control points by least squares on ``samples`` points (exact when
+    the target's breakpoints contain the source's: the same grading, spans a multiple, since the fine
+    space then contains the coarse curve), the shooting nodes from ``trajectory`` (x simulated in
+    ``source``) by cubic Hermite interpolation of its stance angle and rate at the target's span
+    starts. Shape (target.size,)."""
+    from scipy.interpolate import CubicHermiteSpline
     x = np.asarray(x, dtype=float)
     s = np.linspace(0.0, 1.0, samples)
     curve = np.asarray(reference(jnp.asarray(x), source, s)[0])
     points = np.linalg.lstsq(basis(target, s)[0], curve, rcond=None)[0]
     points[-1] = 0.5 * (points[-1] + points[0][SWAP])  # keep the mirror exact
-    return np.concatenate([x[:2], points[1:].ravel()])
+    t = np.asarray(trajectory.t)
+    # a span's first grid point carries its node (the previous span's end differs by the defect):
+    # strictly increasing times without duplicates are all the interpolant needs
+    angle = CubicHermiteSpline(t, np.asarray(trajectory.q)[:, 0], np.asarray(trajectory.qd)[:, 0])
+    rate = CubicHermiteSpline(t, np.asarray(trajectory.qd)[:, 0], np.asarray(trajectory.qdd)[:, 0])
+    starts = segment_starts(target) * t[-1]
+    nodes = np.stack([angle(starts), rate(starts)], axis=-1)
+    nodes[0] = x[:2]
+    return np.asarray(pack(nodes, points[1:]))

@@ -63,10 +63,16 @@ class CGaitRollout:
         scale = np.array([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
         at_grid = np.stack([np.asarray(r) for r in gait.reference(x, settings, s)]) * scale
         at_mid = np.stack([np.asarray(r) for r in gait.reference(x, settings, 0.5 * (s[1:] + s[:-1]))]) * scale
-        theta, rate = [x[0]], [x[1]]
+        nodes = np.asarray(gait.stance_nodes(x, settings))
+        per_segment = settings.steps // settings.segments
+        theta, rate, defects, y = [], [], [], nodes[0]
         f = lambda y_, ref: np.array([y_[1], self._acceleration(y_[0], y_[1], ref)])  # noqa: E731
         for k, dt in enumerate(np.diff(s) * step_time):  # classical Runge-Kutta on the zero dynamics
-            y = np.array([theta[-1], rate[-1]])
+            if k % per_segment == 0:  # a segment starts from its shooting node
+                if k:
+                    defects.append(y - nodes[k // per_segment])
+                y = nodes[k // per_segment]
+                theta[-1:], rate[-1:] = [y[0]], [y[1]]
             k1 = f(y, at_grid[:, k])
             k2 = f(y + 0.5 * dt * k1, at_mid[:, k])
             k3 = f(y + 0.5 * dt * k2, at_mid[:, k])
@@ -91,7 +97,8 @@ class CGaitRollout:
             t=s * step_time, weights=gait.simpson_weights(settings) * step_time, q=np.stack(rows["q"]),
             qd=np.stack(rows["qd"]), qdd=np.stack(rows["qdd"]), u=np.stack(rows["u"]),
             ground_force=np.stack(rows["force"]), swing_foot=positions[:, 0, [0, 2]], heights=positions[:, 1:, 2],
-            touchdown=self._touchdown(q, qd, d), swing_foot_velocity=foot_velocity[[0, 2]])
+            touchdown=self._touchdown(q, qd, d), swing_foot_velocity=foot_velocity[[0, 2]],
+            continuity=np.array(defects).reshape(-1, 2))
 
     @staticmethod
     def _site_velocity(model, data, site: str, qd: np.ndarray) -> np.ndarray:

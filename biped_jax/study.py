@@ -91,7 +91,7 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
     say(f"compiling the gait problems; M1-M4 from {len(gait.START_FAMILIES)} starts each in one batch "
         f"({coarse.settings.spans} knot spans), then the best in {settings.spans} spans")
     solutions = gait_solver.solve_multistart(
-        solver, coarse, names, _models(PAPER_MODELS),
+        solver, names, _models(PAPER_MODELS), coarse=coarse,
         progress=lambda stage, i, row: report(f"M1-M4 {stage}")(i, row))
     say("M1-M4 at M_W = 20 W")
     at_20 = solver.solve(names, _models(PAPER_MODELS, [20.0] * 4),

@@ -175,12 +175,11 @@ def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solut
 
 
 def test_multistart_reports_the_spread_and_keeps_the_best(solver):
-    """Four start families of M2 in one batch; the second stage starts from the cheapest feasible one
-    and lists every start. The tests' solver serves as both stages (its batch of four is the program
-    the paper fixture compiled), so the second stage may only improve on the best start."""
+    """Four start families of M2 in one batch (the program the paper fixture compiled); the cheapest
+    feasible one is kept and every start is listed."""
     model = gait.gait_model("12kg", 0.555, 20.0)
     families = gait.START_FAMILIES[:4]
-    solution, = gait_solver.solve_multistart(solver, solver, ["M2"], [model], families=families)
+    solution, = gait_solver.solve_multistart(solver, ["M2"], [model], families=families)
     assert [row["family"] for row in solution.starts] == [f.name for f in families]
     assert all(np.isfinite([row["cost"] for row in solution.starts]))
     assert solution.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT), solution.status
@@ -225,15 +224,26 @@ def test_bad_settings_are_rejected(changes, message):
         dataclasses.replace(SETTINGS, **changes)
 
 
-def test_projection_into_a_finer_space_keeps_the_curve():
+def test_projection_into_a_finer_space_keeps_the_curve(biped12):
     """Continuation: a coarse-space curve carried into a space with nested knots is the same curve."""
-    fine = dataclasses.replace(SETTINGS, spans=8)
+    fine = dataclasses.replace(SETTINGS, spans=8, segments=8)  # and into multiple shooting
     model = gait.gait_model("12kg", 0.555, 20.0)
     x = np.asarray(gait.initial_guess(model, SETTINGS, family=gait.START_FAMILIES[2]))
-    projected = gait.project(x, SETTINGS, fine)
+    trajectory = jax.jit(lambda x_: gait.simulate(x_, model, biped12, SETTINGS))(x)
+    projected = gait.project(x, SETTINGS, fine, trajectory)
     s = np.linspace(0, 1, 57)
     for a, b in zip(gait.reference(jnp.asarray(x), SETTINGS, s), gait.reference(jnp.asarray(projected), fine, s)):
         np.testing.assert_allclose(a, b, atol=1e-9)
+    # the shooting nodes: the coarse trajectory's stance state at the fine span starts (on its grid
+    # where the spans coincide, interpolated in between)
+    nodes = np.asarray(gait.stance_nodes(jnp.asarray(projected), fine))
+    on_grid = np.arange(SETTINGS.spans) * SETTINGS.substeps
+    stance = np.stack([np.asarray(trajectory.q)[:, 0], np.asarray(trajectory.qd)[:, 0]], axis=-1)
+    np.testing.assert_allclose(nodes[::2], stance[on_grid], atol=1e-12)
+    dense = jax.jit(lambda x_: gait.simulate(x_, model, biped12, dataclasses.replace(SETTINGS, substeps=64)))(x)
+    between = gait.breakpoints(fine)[1::2] * float(dense.t[-1])
+    for k, series in enumerate((dense.q[:, 0], dense.qd[:, 0])):
+        np.testing.assert_allclose(nodes[1::2, k], np.interp(between, dense.t, series), atol=1e-3)
 
 
 def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
@@ -276,3 +286,41 @@ def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_
     central = np.array([(lagrangian_c(x + step * e) - lagrangian_c(x - step * e)) / (2 * step)
                         for e in np.eye(x.size)])
     np.testing.assert_allclose(gradient[0], central, rtol=1e-5, atol=1e-5 * np.abs(central).max())
+
+
+def test_multiple_shooting_reproduces_single_shooting_and_reports_its_defects(biped12):
+    """A multiple-shot step whose nodes lie on the single-shot trajectory is that trajectory (the
+    defects vanish); a node moved off it shows up as exactly that defect, the same in MuJoCo C."""
+    from biped_jax.mujoco_reference import CGaitRollout
+    model = gait.gait_model("12kg", 0.555, 20.0)
+    multi = dataclasses.replace(SETTINGS, segments=SETTINGS.spans)
+    x = gait.initial_guess(model, SETTINGS, family=gait.START_FAMILIES[1])
+    single = jax.jit(lambda x_: gait.simulate(x_, model, biped12, SETTINGS))(x)
+    starts = np.arange(multi.segments) * (multi.steps // multi.segments)
+    nodes = np.stack([np.asarray(single.q)[starts, 0], np.asarray(single.qd)[starts, 0]], axis=-1)
+    x_multi = gait.pack(nodes, gait.control_points(x, SETTINGS)[1:])
+    assert x_multi.shape == (multi.size,) == (SETTINGS.size + 2 * (multi.segments - 1),)
+    simulate = jax.jit(lambda x_: gait.simulate(x_, model, biped12, multi))
+    shot = simulate(x_multi)
+    for name in ("q", "qd", "u", "ground_force"):
+        np.testing.assert_allclose(getattr(shot, name), getattr(single, name), atol=1e-12, err_msg=name)
+    np.testing.assert_allclose(shot.continuity, 0.0, atol=1e-12)
+    assert float(gait.cost(shot)) == pytest.approx(float(gait.cost(single)), rel=1e-12)
+    moved = np.asarray(x_multi).copy()
+    moved[-2:] += np.array([0.01, -0.2])  # the last node's stance angle and rate
+    shot = simulate(jnp.asarray(moved))
+    np.testing.assert_allclose(shot.continuity[-1], [-0.01, 0.2], atol=1e-12)
+    np.testing.assert_allclose(shot.continuity[:-1], 0.0, atol=1e-12)
+    groups = gait.violations(gait.constraint_groups(shot, model, multi))
+    assert float(groups["continuity_angle"]) == pytest.approx(0.01)
+    assert float(groups["continuity_rate"]) == pytest.approx(0.2)
+    reference = CGaitRollout("12kg", multi).simulate(moved, 0.555, 0.2)
+    np.testing.assert_allclose(shot.continuity, reference.continuity, atol=1e-9)
+    np.testing.assert_allclose(shot.u, reference.u, rtol=1e-7, atol=1e-8)
+
+
+def test_shooting_segments_must_divide_the_spans():
+    with pytest.raises(ValueError, match="segments must divide spans"):
+        dataclasses.replace(SETTINGS, segments=3)
+    with pytest.raises(ValueError, match="segments must be an integer in"):
+        dataclasses.replace(SETTINGS, segments=0)

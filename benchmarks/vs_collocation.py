@@ -1,0 +1,104 @@
+"""The product's gait optimiser against an independent direct-collocation solve, in the same run.
+
+For each case (M1-M4 at the paper's power limits, and M1-M4 at 20 W) this solves the planar-step
+problem twice:
+
+- **ours**: ``biped_jax`` as the study runs it (multistart over the heuristic families in one batch,
+  multiple-shooting transcription, augmented Lagrangian over optax), from its own starts only;
+- **peer**: ``collocation_peer.solve`` (CasADi + IPOPT, Hermite-Simpson, written from the spec), on
+  ``--segments`` segments and again on twice as many (its own mesh check).
+
+Reported per case: J of each, the gap (ours / peer - 1) in %, ours' largest violation per group on the
+grid 4x finer (the refinement check) and the peer's J change on its finer mesh, and wall times (ours:
+compile included for the first batch, then warm). Needs the ``bench`` extra (casadi).
+
+    python benchmarks/vs_collocation.py                 # all eight cases
+    python benchmarks/vs_collocation.py --cases M2      # one
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+
+from _results import save_results
+
+
+def peer_row(case, segments: int) -> dict:
+    from collocation_peer import PeerProblem, solve
+    from biped_jax.robot_specs import PLANAR_SPECS
+    problem = PeerProblem(PLANAR_SPECS[case.mass_class], case.speed, case.power_limit)
+    coarse = solve(problem, segments)
+    fine = solve(problem, 2 * segments)
+    return {"cost": coarse["cost"], "status": coarse["status"], "segments": segments,
+            "cost_finer_mesh": fine["cost"], "status_finer_mesh": fine["status"],
+            "mesh_change": abs(fine["cost"] - coarse["cost"]) / abs(coarse["cost"]),
+            "wall_time_s": coarse["wall_time_s"], "wall_time_finer_s": fine["wall_time_s"]}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", nargs="*", default=None,
+                        help="subset, e.g. M2 M4@20W (default: M1-M4 at the paper's limits and at 20 W)")
+    parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
+    parser.add_argument("--spans", type=int, default=16)
+    parser.add_argument("--substeps", type=int, default=8)
+    parser.add_argument("--name", default="vs_collocation")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", True)
+
+    from biped_jax import gait, gait_solver, study
+    from biped_jax.gait_solver import GaitSolver
+
+    cases = [(m, m.power_limit) for m in study.PAPER_MODELS] + [(m, 20.0) for m in study.PAPER_MODELS]
+    label = lambda m, p: m.name if p == m.power_limit else f"{m.name}@{p:g}W"  # noqa: E731
+    if args.cases:
+        cases = [c for c in cases if label(*c) in args.cases]
+        if not cases:
+            parser.error(f"--cases {args.cases}: none of M1..M4 or M1@20W..M4@20W")
+
+    settings = gait.GaitSettings(spans=args.spans, substeps=args.substeps)
+    started = time.perf_counter()
+    solver = GaitSolver(settings)
+    coarse = GaitSolver(gait_solver.coarse_settings(settings))  # the study's continuation
+    names = [label(*c) for c in cases]
+    models = [gait.gait_model(m.mass_class, m.speed, p) for m, p in cases]
+    ours = gait_solver.solve_multistart(solver, names, models, coarse=coarse)
+    ours_time = time.perf_counter() - started
+    started = time.perf_counter()
+    gait_solver.solve_multistart(solver, names, models, coarse=coarse)
+    ours_warm = time.perf_counter() - started
+
+    rows = []
+    for (model, limit), solution in zip(cases, ours):
+        peer = peer_row(dataclass_replace(model, limit), args.segments)
+        gap = 100 * (solution.cost / peer["cost"] - 1)
+        row = {"case": solution.name, "ours": {
+            "cost": solution.cost, "status": solution.status, "cost_refined": solution.refinement["cost"],
+            "refined_violations": solution.refinement["violations"],
+            "refinement_passed": solution.refinement["passed"],
+            "starts": solution.starts}, "peer": peer, "gap_percent": gap,
+            "ours_batch_cold_s": ours_time, "ours_batch_warm_s": ours_warm}
+        rows.append(row)
+        worst = max(solution.refinement["violations"].items(), key=lambda kv: kv[1])
+        print(f"{solution.name:8s} ours J = {solution.cost:8.4f} ({solution.status}; 4x grid J "
+              f"{solution.refinement['cost']:.4f}, worst {worst[0]} {worst[1]:.1e})  peer J = {peer['cost']:8.4f} "
+              f"({peer['status']}; {2 * args.segments} segments {peer['cost_finer_mesh']:.4f})  gap {gap:+6.2f} %",
+              flush=True)
+    print(f"ours: {len(cases)} cases in one batch, {ours_time:.0f} s cold (compile included), "
+          f"{ours_warm:.0f} s warm")
+    save_results(args.name, {"segments": args.segments, "spans": args.spans, "substeps": args.substeps},
+                 rows, args.out)
+
+
+def dataclass_replace(model, power_limit):
+    import dataclasses
+    return dataclasses.replace(model, power_limit=power_limit)
+
+
+if __name__ == "__main__":
+    main()
