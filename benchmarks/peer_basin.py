@@ -1,0 +1,99 @@
+"""Diagnostic: where does our solver land when started inside the collocation peer's basin?
+
+Solves M2 (or another model) with the independent peer (``collocation_peer.solve``), fits its joint
+paths into our B-spline space (least squares on the peer's node positions; control point 0 mirrored)
+with the shooting nodes on the peer's stance angle and rate, reports J and the violations of that fit
+in our transcription, then solves our problem from it. This is a diagnostic of the transcription and
+the solver, never a product start (the study solves from its own heuristics only).
+
+    python benchmarks/peer_basin.py --segments 16 --penalty-initial 1e3 --gauss-newton
+
+Needs the ``bench`` extra (casadi).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from _results import save_results
+
+# peer coordinates (absolute pitches) -> our relative joints (H1, K1, H2, K2): see collocation_peer
+_PEER_TO_JOINTS = np.array([[0, -1, 1, 0, 0], [1, -1, 0, 0, 0], [0, 0, 1, -1, 0], [0, 0, 0, -1, 1]], dtype=float)
+_JOINT_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])  # our hips turn about -y where the peer's are torso - thigh
+
+
+def fitted_start(peer: dict, settings) -> np.ndarray:
+    """Our decision vector closest to the peer's solution, shape (settings.size,)."""
+    from scipy.interpolate import CubicHermiteSpline
+
+    from biped_jax import gait
+    phi, phid, t = peer["phi"], peer["phid"], peer["t"]
+    joints = (_PEER_TO_JOINTS @ phi) * _JOINT_SIGNS[:, None]
+    points = np.linalg.lstsq(gait.basis(settings, t / t[-1])[0], joints.T, rcond=None)[0]
+    points[-1] = 0.5 * (points[-1] + points[0][gait.SWAP])
+    starts = gait.segment_starts(settings) * t[-1]
+    stance = CubicHermiteSpline(t, phi[0], phid[0])  # our stance angle is the peer's shank pitch
+    nodes = np.stack([stance(starts), np.interp(starts, t, phid[0])], axis=-1)
+    return np.asarray(gait.pack(nodes, points[1:]))
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--mass-class", default="12kg", choices=("12kg", "18kg"))
+    parser.add_argument("--speed", type=float, default=0.555, help="m/s")
+    parser.add_argument("--power-limit", type=float, default=20.0, help="W")
+    parser.add_argument("--peer-segments", type=int, default=30)
+    parser.add_argument("--spans", type=int, default=16)
+    parser.add_argument("--segments", type=int, default=16, help="our shooting segments (1: single shooting)")
+    parser.add_argument("--penalty-initial", type=float, default=1e3)
+    parser.add_argument("--gauss-newton", action="store_true",
+                        help="a Gauss-Newton step every inner iteration, 15 per multiplier update, uncapped")
+    parser.add_argument("--max-outer", type=int, default=40)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", True)
+
+    from collocation_peer import PeerProblem, solve
+
+    from biped_jax import gait
+    from biped_jax.gait_solver import GaitSolver
+    from biped_jax.robot_specs import PLANAR_SPECS
+
+    peer = solve(PeerProblem(PLANAR_SPECS[args.mass_class], args.speed, args.power_limit), args.peer_segments)
+    print(f"peer: J = {peer['cost']:.4f} ({peer['status']}, {args.peer_segments} segments)", flush=True)
+    settings = gait.GaitSettings(spans=args.spans, segments=args.segments)
+    options = dict(penalty_initial=args.penalty_initial, max_outer=args.max_outer)
+    if args.gauss_newton:
+        options.update(penalty_growth=3.0, penalty_max=1e9, max_inner=15, precondition_every=1, cap_first_step=False)
+    solver = GaitSolver(settings, mass_class_template=args.mass_class).with_options(**options)
+    model = gait.gait_model(args.mass_class, args.speed, args.power_limit)
+    x0 = fitted_start(peer, settings)
+    fit = jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(
+        jnp.asarray(x0)[None], jax.tree.map(lambda a: jnp.asarray(a, float)[None], model)))
+    fit_violations = {k: float(v) for k, v in gait.violations(gait.constraint_groups(fit, model, settings)).items()}
+    print(f"fit: J = {float(gait.cost(fit)):.4f}, violations "
+          + ", ".join(f"{k} {v:.1e}" for k, v in fit_violations.items() if v > 1e-4), flush=True)
+    started = time.perf_counter()
+    def progress(i, row):
+        print(f"  outer {i + 1}: J {float(row['cost'][0]):.4f}, scaled violation "
+              f"{float(row['violation'][0]):.1e}, penalty {float(row['penalty'][0]):.0e}, "
+              f"{time.perf_counter() - started:.0f} s", flush=True)
+
+    solution, = solver.solve(["from the peer's basin"], [model], x0=jnp.asarray(x0)[None], progress=progress)
+    gap = 100 * (solution.cost / peer["cost"] - 1)
+    print(f"ours from there: {solution.status}, J = {solution.cost:.4f} ({gap:+.1f} % on the peer)"
+          f", largest violation {solution.max_violation:.1e}, 4x grid J {solution.refinement['cost']:.4f}")
+    save_results("peer_basin", {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+                 [{"peer_cost": peer["cost"], "fit_cost": float(gait.cost(fit)), "fit_violations": fit_violations,
+                   "status": solution.status, "cost": solution.cost, "max_violation": solution.max_violation,
+                   "refinement": solution.refinement, "history": solution.history}], args.out)
+
+
+if __name__ == "__main__":
+    main()
