@@ -581,7 +581,7 @@ def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 
     """A heuristic start of ``family``: legs mirrored about the vertical at the ends, the swing knee and
     hip flexed mid-step, the stance knee flexed mid-stance, the stance leg vaulting forward from
     ``-asin(L / 2 l)`` to its mirror along a parabola whose start rate is the family's. The curve is
-    sampled at the Greville abscissae, the vault at the knot-span starts. Shape (settings.size,)."""
+    sampled at the Greville abscissae, the vault at the shooting nodes (:func:`segment_starts`). Shape (settings.size,)."""
     lift = family.swing_lift if swing_lift is None else swing_lift
     stance = -jnp.arcsin(0.5 * model.step_length / leg_length)
     # (H1, K1, H2, K2): a hip angle is the thigh against the torso, so leaning the torso forward by
@@ -608,7 +608,7 @@ def project(x: np.ndarray, source: GaitSettings, target: GaitSettings, trajector
     to a fine reference space): the control points by least squares on ``samples`` points (exact when
     the target's breakpoints contain the source's: the same grading, spans a multiple, since the fine
     space then contains the coarse curve), the shooting nodes from ``trajectory`` (x simulated in
-    ``source``) by cubic Hermite interpolation of its stance angle and rate at the target's span
+    ``source``) by cubic Hermite interpolation of its stance angle and rate at the target's segment
     starts. Shape (target.size,)."""
     from scipy.interpolate import CubicHermiteSpline
     x = np.asarray(x, dtype=float)
@@ -617,8 +617,8 @@ def project(x: np.ndarray, source: GaitSettings, target: GaitSettings, trajector
     points = np.linalg.lstsq(basis(target, s)[0], curve, rcond=None)[0]
     points[-1] = 0.5 * (points[-1] + points[0][SWAP])  # keep the mirror exact
     t = np.asarray(trajectory.t)
-    # a span's first grid point carries its node (the previous span's end differs by the defect):
-    # strictly increasing times without duplicates are all the interpolant needs
+    # at a segment boundary the grid point carries the next node (the previous segment's end differs
+    # from it by the defect); the grid's times are strictly increasing, as the interpolant needs
     angle = CubicHermiteSpline(t, np.asarray(trajectory.q)[:, 0], np.asarray(trajectory.qd)[:, 0])
     rate = CubicHermiteSpline(t, np.asarray(trajectory.qd)[:, 0], np.asarray(trajectory.qdd)[:, 0])
     starts = segment_starts(target) * t[-1]
