@@ -581,7 +581,8 @@ def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 
     """A heuristic start of ``family``: legs mirrored about the vertical at the ends, the swing knee and
     hip flexed mid-step, the stance knee flexed mid-stance, the stance leg vaulting forward from
     ``-asin(L / 2 l)`` to its mirror along a parabola whose start rate is the family's. The curve is
-    sampled at the Greville abscissae, the vault at the shooting nodes (:func:`segment_starts`). Shape (settings.size,)."""
+    sampled at the Greville abscissae, the vault at the shooting nodes (:func:`segment_starts`).
+    Shape (settings.size,)."""
     lift = family.swing_lift if swing_lift is None else swing_lift
     stance = -jnp.arcsin(0.5 * model.step_length / leg_length)
     # (H1, K1, H2, K2): a hip angle is the thigh against the torso, so leaning the torso forward by
