@@ -555,6 +555,8 @@ class StartFamily:
       name: label. swing_lift: how far the swing knee flexes mid-step (rad, roughly). stance_knee:
         flexion of the stance knee mid-stance, rad. torso_pitch: torso lean forward, rad (hips flex by
         it). rate_factor: the stance angle's start rate as a multiple of v / leg length.
+        impact_knee: flexion of the stance knee at touchdown, rad (by the mirror, the swing knee's at
+        the start), blended linearly in between.
     """
 
     name: str
@@ -562,6 +564,7 @@ class StartFamily:
     stance_knee: float = 0.0
     torso_pitch: float = 0.0
     rate_factor: float = 1.3
+    impact_knee: float = 0.0
 
 
 #: The multistart's families (:func:`initial_guess`), spanning the gait families seen in this problem:
@@ -587,7 +590,8 @@ def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 
     stance = -jnp.arcsin(0.5 * model.step_length / leg_length)
     # (H1, K1, H2, K2): a hip angle is the thigh against the torso, so leaning the torso forward by
     # ``torso_pitch`` flexes both hips by it.
-    start = jnp.stack([stance, 0.0, -stance, 0.0]) + family.torso_pitch * jnp.array([-1.0, 0.0, -1.0, 0.0])
+    start = jnp.stack([stance, 0.0, -stance, family.impact_knee]) \
+        + family.torso_pitch * jnp.array([-1.0, 0.0, -1.0, 0.0])
     end = start[SWAP]
     s = jnp.asarray(greville(settings))[1:, None]
     bump = 4 * s * (1 - s) * (lift * jnp.array([0.0, 0.0, -0.6, 1.0])

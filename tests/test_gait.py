@@ -324,3 +324,15 @@ def test_shooting_segments_must_divide_the_spans():
         dataclasses.replace(SETTINGS, segments=3)
     with pytest.raises(ValueError, match="segments must be an integer in"):
         dataclasses.replace(SETTINGS, segments=0)
+
+
+def test_start_family_can_land_on_a_flexed_stance_knee():
+    """``impact_knee`` flexes the stance knee at touchdown and, by the mirror, the swing knee at the
+    start; the default families keep both straight."""
+    model = gait.gait_model("12kg", 0.555, 20.0)
+    family = dataclasses.replace(gait.START_FAMILIES[2], impact_knee=0.3)
+    for chosen, knee in ((family, 0.3), (gait.START_FAMILIES[2], 0.0)):
+        x = gait.initial_guess(model, SETTINGS, family=chosen)
+        q = np.asarray(gait.reference(x, SETTINGS, np.array([0.0, 1.0]))[0])  # (H1, K1, H2, K2) at 0, t_f
+        assert q[1, 1] == pytest.approx(knee, abs=1e-12) and q[0, 3] == pytest.approx(knee, abs=1e-12)
+        assert q[0, 1] == pytest.approx(0.0, abs=1e-12)
