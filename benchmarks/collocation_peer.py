@@ -26,7 +26,7 @@ import numpy as np
 from biped_jax.robot_specs import PLANAR_SPECS, PlanarBipedSpec
 
 # relative joint angles (H1, K1, H2, K2) = S phi
-_S = np.array([[0, -1, 1, 0, 0], [1, -1, 0, 0, 0], [0, 0, 1, -1, 0], [0, 0, 0, -1, 1]], dtype=float)
+RELATIVE_JOINTS = np.array([[0, -1, 1, 0, 0], [1, -1, 0, 0, 0], [0, 0, 1, -1, 0], [0, 0, 0, -1, 1]], dtype=float)
 _RELABEL = [4, 3, 2, 1, 0]
 
 
@@ -85,7 +85,7 @@ def _model(spec: PlanarBipedSpec):
     momentum = ca.gradient(kinetic, phid)
     bias = ca.jtimes(momentum, phi, phid) - ca.gradient(kinetic, phi) + ca.gradient(potential, phi)
     u = ca.SX.sym("u", 4)
-    phidd = ca.solve(mass, _S.T @ u - bias)
+    phidd = ca.solve(mass, RELATIVE_JOINTS.T @ u - bias)
     total = sum(masses)
     com = sum(m * c for m, c in zip(masses, pts["coms"])) / total
     com_acc = ca.jtimes(ca.jtimes(com, phi, phid), phi, phid) + ca.jtimes(com, phi, phidd)
@@ -122,7 +122,7 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
     for k in range(nodes):
         phidd, force, foot, foot_v, hip_z, knee1_z, knee2_z = outputs(phi[:, k], phid[:, k], u[:, k])
         f.append(ca.vertcat(phid[:, k], phidd))
-        rates = _S @ phid[:, k]
+        rates = RELATIVE_JOINTS @ phid[:, k]
         power = rates * u[:, k]
         opti.subject_to(opti.bounded(-problem.power_limit, power, problem.power_limit))
         opti.subject_to(opti.bounded(-problem.torque_bound, u[:, k], problem.torque_bound))

@@ -19,6 +19,7 @@ compile included for the first batch, then warm). Needs the ``bench`` extra (cas
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -75,7 +76,7 @@ def main():
 
     rows = []
     for (model, limit), solution in zip(cases, ours):
-        peer = peer_row(dataclass_replace(model, limit), args.segments)
+        peer = peer_row(dataclasses.replace(model, power_limit=limit), args.segments)
         gap = 100 * (solution.cost / peer["cost"] - 1)
         row = {"case": solution.name, "ours": {
             "cost": solution.cost, "status": solution.status, "cost_refined": solution.refinement["cost"],
@@ -93,11 +94,6 @@ def main():
           f"{ours_warm:.0f} s warm")
     save_results(args.name, {"segments": args.segments, "spans": args.spans, "substeps": args.substeps},
                  rows, args.out)
-
-
-def dataclass_replace(model, power_limit):
-    import dataclasses
-    return dataclasses.replace(model, power_limit=power_limit)
 
 
 if __name__ == "__main__":

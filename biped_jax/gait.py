@@ -38,7 +38,7 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.interpolate import BSpline
+from scipy.interpolate import BSpline, CubicHermiteSpline
 
 from biped_jax import drives as drive_model
 from biped_jax import hybrid_step as hs
@@ -615,7 +615,6 @@ def project(x: np.ndarray, source: GaitSettings, target: GaitSettings, trajector
     space then contains the coarse curve), the shooting nodes from ``trajectory`` (x simulated in
     ``source``) by cubic Hermite interpolation of its stance angle and rate at the target's segment
     starts. Shape (target.size,)."""
-    from scipy.interpolate import CubicHermiteSpline
     x = np.asarray(x, dtype=float)
     s = np.linspace(0.0, 1.0, samples)
     curve = np.asarray(reference(jnp.asarray(x), source, s)[0])
