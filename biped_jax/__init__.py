@@ -2,24 +2,37 @@
 
 Modules: ``robots`` (model registry and loading), ``robot_specs`` and ``mjcf`` (robot data and the
 MJCF files), ``design`` (design parameters as arrays), ``hybrid_step`` (the sagittal walking step in
-MJX), ``heuristic_step`` (a PD-controlled step), ``cli`` (the ``biped-jax`` command).
+MJX), ``gait`` and ``gait_solver`` (the optimal walking step), ``drives`` and ``drive_selection``
+(motors and gearheads), ``codesign``, ``heuristic_step`` (a PD-controlled step), ``cli`` (the
+``biped-jax`` command).
+
+The names below load on first use (PEP 562), so ``import biped_jax`` and the command line's argument
+checks do not wait for JAX and MuJoCo to import.
 """
 
-from biped_jax.design import Design, apply_design, check_design, design_layout
-from biped_jax.hybrid_step import (
-    PlanarBiped,
-    StanceTrajectory,
-    Touchdown,
-    load_planar_biped,
-    stance_rollout,
-    touchdown,
-    with_design,
-)
-from biped_jax.robots import ROBOTS, load_mj_model, load_mjx_model, model_path
+import importlib
 
-__all__ = [
-    "ROBOTS", "Design", "PlanarBiped", "StanceTrajectory", "Touchdown", "apply_design", "check_design",
-    "design_layout", "load_mj_model", "load_mjx_model", "load_planar_biped", "model_path",
-    "stance_rollout", "touchdown", "with_design",
-]
+_EXPORTS = {
+    "Design": "design", "apply_design": "design", "check_design": "design", "design_layout": "design",
+    "PlanarBiped": "hybrid_step", "StanceTrajectory": "hybrid_step", "Touchdown": "hybrid_step",
+    "load_planar_biped": "hybrid_step", "stance_rollout": "hybrid_step", "touchdown": "hybrid_step",
+    "with_design": "hybrid_step",
+    "ROBOTS": "robots", "load_mj_model": "robots", "load_mjx_model": "robots", "model_path": "robots",
+    "GaitSettings": "gait", "gait_model": "gait", "START_FAMILIES": "gait",
+    "GaitSolver": "gait_solver", "GaitSolution": "gait_solver", "solve_multistart": "gait_solver",
+}
+
+__all__ = sorted(_EXPORTS)
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(importlib.import_module(f"biped_jax.{_EXPORTS[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'biped_jax' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_EXPORTS))

@@ -26,6 +26,10 @@ import numpy as np
 import optax
 
 CONVERGED, INFEASIBLE, ITERATION_LIMIT, DIVERGED = "converged", "infeasible", "iteration limit", "diverged"
+#: At the penalty cap with the violation no longer falling, but too small to call the problem
+#: infeasible (below ``SolverOptions.infeasible_above``): the inner solver stalled near a feasible
+#: point, which says nothing about whether one exists.
+STALLED = "stalled"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,7 +111,8 @@ class SolverOptions:
       max_inner: L-BFGS iterations per inner problem at most.
       penalty_initial, penalty_growth, penalty_max: rho schedule; rho grows when the violation did not
         fall to a quarter and is above 10 x tolerance (near the tolerance the multipliers finish the
-        job); a problem still infeasible at penalty_max is declared infeasible.
+        job); a problem still infeasible at penalty_max is declared infeasible when its scaled
+        violation exceeds infeasible_above, else stalled (see :data:`STALLED`).
       memory: L-BFGS memory.
       armijo: sufficient-decrease constant of the line search; max_backtracks halvings at most.
       precondition_every: inner iterations between refreshes of the Gauss-Newton preconditioner
@@ -128,6 +133,7 @@ class SolverOptions:
     max_backtracks: int = 30
     precondition_every: int = 50
     cap_first_step: bool = True
+    infeasible_above: float = 1e-3
 
 
 @dataclasses.dataclass
@@ -364,18 +370,24 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
                 # Penalty at its cap and the violation no longer falling: no feasible point nearby.
                 if stationarity[b] <= options.stationarity or (
                         at_cap[b] >= 3 and violation[b] > 0.9 * best_violation[b]):
-                    status[b], active[b] = INFEASIBLE, False
+                    status[b], active[b] = _at_cap(violation[b], options), False
             best_violation[b] = min(best_violation[b], violation[b])
         if not active.any():
             break
     for b in range(batch):
         if active[b] and float(rho[b]) >= options.penalty_max and previous_violation[b] > options.tolerance:
-            status[b] = INFEASIBLE
+            status[b] = _at_cap(previous_violation[b], options)
     return SolveResult(x=np.asarray(x), cost=np.asarray(f), equalities=np.asarray(h),
                        inequalities=np.asarray(g), violation=np.asarray(_violation(h, g)),
                        stationarity=stationarity, status=status, outer_iterations=outer_iterations,
                        gradients=gradients, wall_time_s=time.perf_counter() - started, history=history,
                        multipliers_eq=np.asarray(lam_eq), multipliers_in=np.asarray(lam_in))
+
+
+def _at_cap(violation: float, options: SolverOptions) -> str:
+    """The status of a problem left infeasible at the penalty cap: :data:`INFEASIBLE` when clearly
+    so, :data:`STALLED` when the violation is small enough that a better inner solver might close it."""
+    return INFEASIBLE if violation > options.infeasible_above else STALLED
 
 
 def optimal_value_gradient(problem: ConstrainedProblem, parameters_to_params: Callable) -> Callable:

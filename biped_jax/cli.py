@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import sys
 import time
@@ -22,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 from rich.console import Console
+
+from biped_jax import checks, outputs
 
 console = Console(stderr=True)
 
@@ -127,7 +128,7 @@ def _plot_steps(arrays: dict[str, dict], path: Path) -> None:
         axis.legend(fontsize=7, ncol=2)
     for axis in axes.flat[:3]:
         axis.set_xlabel("time [s]")
-    figure.savefig(path, dpi=120)
+    outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)
 
 
@@ -162,8 +163,8 @@ def heuristic_steps(out: Path) -> dict:
         console.print(f"[green]done[/] {mass_class}: touched down = {summary['touched_down']}")
     results = {"study": "heuristic step (placeholder until the gait optimiser)",
                "wall_time_s": time.perf_counter() - started, "steps": summaries}
-    (out / "results.json").write_text(json.dumps(results, indent=2))
-    (out / "heuristic_step.md").write_text("# One heuristic walking step\n\n" + _markdown_table(summaries))
+    outputs.write_json(out / "results.json", results)
+    outputs.write_text(out / "heuristic_step.md", "# One heuristic walking step\n\n" + _markdown_table(summaries))
     _plot_steps(arrays, out / "heuristic_step.png")
     console.print(f"wrote {out / 'results.json'}, {out / 'heuristic_step.md'}, {out / 'heuristic_step.png'}")
     return results
@@ -287,59 +288,123 @@ def codesign(out: Path, settings, iterations: int) -> dict:
     return results
 
 
+def _integer(name: str, low: int, high: int):
+    """An argparse type: an integer in [low, high] (the subcommand's usage names a bad one)."""
+    def parse(text: str) -> int:
+        try:
+            return checks.integer_in(f"--{name}", int(text), low, high)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--{name} must be an integer in [{low}, {high}], got {text!r}") from None
+    return parse
+
+
+def _substeps(text: str) -> int:
+    value = _integer("substeps", *checks.GAIT_INTEGER_RANGES["substeps"])(text)
+    if value % 2:
+        raise argparse.ArgumentTypeError(f"--substeps must be even (Simpson's rule pairs the steps), got {value}")
+    return value
+
+
+def _output_folder(text: str) -> Path:
+    """An argparse type: a folder that can be written (checked before any computing; created later)."""
+    try:
+        return outputs.check_output_dir(Path(text))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def _input_folder(text: str) -> Path:
+    path = Path(text)
+    if not path.is_dir():
+        fault = "is not a folder" if path.exists() else "does not exist"
+        raise argparse.ArgumentTypeError(f"--gaits {text}: {fault}")
+    return path
+
+
+def _out_argument(parser) -> None:
+    parser.add_argument("--out", type=_output_folder, default=Path("out"), help="output folder (default: out/)")
+
+
 def _space_arguments(parser, when: str = "") -> None:
     """The gait problem's reference space and grid (``biped_jax.gait.GaitSettings``)."""
-    parser.add_argument("--spans", type=int, default=16, help=f"knot spans of the joint B-splines{when} (default 16)")
-    parser.add_argument("--degree", type=int, default=3, help=f"B-spline degree{when} (default 3)")
-    parser.add_argument("--substeps", type=int, default=8,
+    ranges = checks.GAIT_INTEGER_RANGES
+    parser.add_argument("--spans", type=_integer("spans", *ranges["spans"]), default=16,
+                        help=f"knot spans of the joint B-splines{when}, {ranges['spans'][0]}-{ranges['spans'][1]} "
+                             "(default 16)")
+    parser.add_argument("--degree", type=_integer("degree", *ranges["degree"]), default=3,
+                        help=f"B-spline degree{when}, {ranges['degree'][0]}-{ranges['degree'][1]} (default 3)")
+    parser.add_argument("--substeps", type=_substeps, default=8,
                         help=f"Runge-Kutta steps per knot span, even{when} (default 8)")
 
 
-def main(argv: list[str] | None = None) -> int:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="biped-jax", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("reproduce", help="run the paper's study and write results")
-    run.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    _out_argument(run)
     _space_arguments(run)
-    run.add_argument("--bisections", type=int, default=6,
-                     help="bisection steps for the smallest feasible power limit (default 6)")
+    run.add_argument("--bisections", type=_integer("bisections", 1, 30), default=6,
+                     help="bisection steps for the smallest feasible power limit, 1-30 (default 6)")
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     bench = commands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
-    bench.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    _out_argument(bench)
     _space_arguments(bench)
     walker = commands.add_parser("donald", help="DONALD's statically stable walk in MJX (figures, JSON)")
-    walker.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    walker.add_argument("--steps", type=int, default=8, help="steps to walk (default 8)")
+    _out_argument(walker)
+    walker.add_argument("--steps", type=_integer("steps", 1, 1000), default=8, help="steps to walk, 1-1000 (default 8)")
     walker.add_argument("--faster", action="store_true",
                         help="first optimise the gait for speed (tens of minutes), then walk the optimum")
     replay = commands.add_parser("humanoid", help="the optimal sagittal gait replayed on the 16-DoF humanoid "
                                  "under contact in MJX (figures, JSON; it walks slower than the gait, see "
                                  "README)")
-    replay.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    replay.add_argument("--model", default="M2", help="which of the paper's models M1-M4 (default M2)")
-    replay.add_argument("--steps", type=int, default=10, help="steps to walk (default 10)")
-    replay.add_argument("--gaits", type=Path, default=None,
+    _out_argument(replay)
+    replay.add_argument("--model", default="M2", choices=("M1", "M2", "M3", "M4"),
+                        help="which of the paper's models (default M2)")
+    replay.add_argument("--steps", type=_integer("steps", 1, 1000), default=10,
+                        help="steps to walk, 1-1000 (default 10)")
+    replay.add_argument("--gaits", type=_input_folder, default=None,
                         help="folder with results.json from `biped-jax reproduce` (default: solve the model here)")
     _space_arguments(replay, " when solving here")
     design = commands.add_parser("codesign", help="co-design studies: gear ratios, windings and masses with "
                                  "the gait (figures, JSON; tens of minutes)")
-    design.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    _out_argument(design)
     _space_arguments(design)
-    design.add_argument("--iterations", type=int, default=5, help="co-optimisation iterations (default 5)")
+    design.add_argument("--iterations", type=_integer("iterations", 1, 1000), default=5,
+                        help="co-optimisation iterations, 1-1000 (default 5)")
     design.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
-    drive.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    drive.add_argument("--gaits", type=Path, default=None,
+    _out_argument(drive)
+    drive.add_argument("--gaits", type=_input_folder, default=None,
                        help="folder with trajectories.npz from `biped-jax reproduce` (default: --out)")
     step = commands.add_parser("step", help="simulate one heuristic PD-controlled step per mass class")
-    step.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
+    _out_argument(step)
     commands.add_parser("models", help="list the robot models")
     view = commands.add_parser("view", help="open a model in MuJoCo's viewer (needs a display)")
     view.add_argument("name")
     view.add_argument("--replay", type=Path, default=None,
                       help="an .npz with t and qpos (e.g. out/donald_replay.npz) to play back")
-    args = parser.parse_args(argv)
+    for name, sub in commands.choices.items():
+        sub.set_defaults(parser=sub)
+    return parser
 
+
+def main(argv: list[str] | None = None) -> int:
+    """The command line; returns the exit status (130 after Ctrl-C, with one line saying so)."""
+    args = _parser().parse_args(argv)
+    if not hasattr(args, "out"):
+        return _run(args)
+    try:
+        with outputs.run_manifest(args.out, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv))):
+            return _run(args)
+    except KeyboardInterrupt:
+        listed = outputs.read_manifest(args.out)
+        kept = ", ".join(listed["files"]) if listed and listed["files"] else "nothing"
+        console.print(f"interrupted: finished and kept in {args.out}: {kept} (see {args.out / outputs.MANIFEST})")
+        return 130
+
+
+def _run(args) -> int:
+    parser = args.parser
     from biped_jax import robots
     if args.command == "models":
         for name, (file_name, description) in robots.ROBOTS.items():
@@ -348,13 +413,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "view":
         try:
             model = robots.load_mj_model(args.name)
+            replay = None if args.replay is None else load_replay(args.replay)
         except ValueError as error:
             parser.error(str(error))
+        if replay is not None and replay["qpos"].shape[1] != model.nq:
+            parser.error(f"--replay {args.replay}: qpos has {replay['qpos'].shape[1]} columns, "
+                         f"{args.name} has {model.nq} coordinates")
         import mujoco.viewer
-        if args.replay is None:
+        if replay is None:
             mujoco.viewer.launch(model)
             return 0
-        replay = np.load(args.replay)
         data = mujoco.MjData(model)
         with mujoco.viewer.launch_passive(model, data) as viewer:
             for t, qpos in zip(np.diff(replay["t"], prepend=0.0), replay["qpos"]):
@@ -369,17 +437,17 @@ def main(argv: list[str] | None = None) -> int:
         if not source.is_file():
             parser.error(f"no gait trajectories at {source}: run `biped-jax reproduce --out "
                          f"{args.gaits or args.out}` first")
-        args.out.mkdir(parents=True, exist_ok=True)
-        drive_selection.run_drive_study(args.out, drive_selection.load_workspaces(source))
-        console.print(f"wrote {args.out}/drives.json, drives.md, fig4_motor_M2.png, fig5_motor_M4.png")
+        try:
+            workspaces = drive_selection.load_workspaces(source)
+        except ValueError as error:
+            parser.error(str(error))
+        drive_selection.run_drive_study(args.out, workspaces)
+        console.print(f"wrote into {args.out}: " + ", ".join(outputs.read_manifest(args.out)["files"]))
         return 0
     configure_jax()
     if args.command == "step":
         heuristic_steps(args.out)
         return 0
-    for name in ("steps", "bisections", "iterations"):
-        if getattr(args, name, 1) < 1:
-            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     settings = None
     if hasattr(args, "spans"):
         from biped_jax.gait import GaitSettings
@@ -405,6 +473,29 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     reproduce(args.out, settings, args.bisections)
     return 0
+
+
+def load_replay(path: Path) -> dict:
+    """``t`` (T,) and ``qpos`` (T, nq) from a replay ``.npz``; ValueError naming the file and the fault."""
+    if not path.is_file():
+        raise ValueError(f"--replay {path}: " + ("is not a file" if path.exists() else "does not exist"))
+    import zipfile
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"--replay {path}: not a readable .npz file (not a zip archive)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: np.asarray(data[key], dtype=float) for key in ("t", "qpos")}
+    except KeyError as error:
+        raise ValueError(f"--replay {path}: no array {error} (needs t and qpos)") from None
+    except (OSError, ValueError) as error:
+        raise ValueError(f"--replay {path}: not a readable .npz file ({error})") from None
+    if arrays["t"].ndim != 1 or arrays["qpos"].ndim != 2 or len(arrays["t"]) != len(arrays["qpos"]) \
+            or not len(arrays["t"]):
+        raise ValueError(f"--replay {path}: needs t (T,) and qpos (T, nq) with T > 0, got shapes "
+                         f"{arrays['t'].shape} and {arrays['qpos'].shape}")
+    if not (np.all(np.isfinite(arrays["t"])) and np.all(np.isfinite(arrays["qpos"]))):
+        raise ValueError(f"--replay {path}: contains NaN or infinite values")
+    return arrays
 
 
 if __name__ == "__main__":

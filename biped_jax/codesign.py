@@ -38,7 +38,7 @@ from biped_jax import augmented_lagrangian as al
 from biped_jax import drives as drive_model
 from biped_jax import gait
 from biped_jax import hybrid_step as hs
-from biped_jax.design import PLANAR_DRIVE_MOUNTS, PLANAR_LINKS, Design
+from biped_jax.design import PLANAR_DRIVE_MOUNTS, PLANAR_LINKS, Design, check_design
 from biped_jax.gait_solver import stack_tree
 
 #: The paper's drive for the 12 kg robot (Section 2.3): the 42 V RE 25 winding, GP 32 A 66:1, 38 V supply.
@@ -82,11 +82,20 @@ def reflected_inertia(design: DriveDesign) -> jax.Array:
     return design.ratio**2 * (design.rotor_inertia + design.gear_inertia)
 
 
+def _concrete(*trees) -> bool:
+    """True outside a trace (the values can be checked)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for tree in trees for leaf in jax.tree.leaves(tree))
+
+
 def robot_design(design: DriveDesign) -> Design:
-    """The MJX model's design arrays: structure masses, armature N^2 J, drive masses at the joints."""
-    return Design(link_mass=design.structure_mass, joint_armature=reflected_inertia(design),
-                  joint_damping=jnp.zeros_like(design.ratio),
-                  drive_mass=design.motor_mass + design.gear_mass)
+    """The MJX model's design arrays: structure masses, armature N^2 J, drive masses at the joints.
+    A concrete design is checked (ValueError naming a non-positive or non-finite mass)."""
+    result = Design(link_mass=design.structure_mass, joint_armature=reflected_inertia(design),
+                    joint_damping=jnp.zeros_like(design.ratio),
+                    drive_mass=design.motor_mass + design.gear_mass)
+    if _concrete(design):
+        check_design(result, hs.planar_layouts()[0])
+    return result
 
 
 def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
@@ -98,7 +107,10 @@ def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
 
 def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait.GaitModel:
     """The gait problem of a design (traceable: ``speed`` etc. may be arrays). The geometry is that of
-    the paper's biped (planar-step.md); masses and drives come from ``design``."""
+    the paper's biped (planar-step.md); masses and drives come from ``design``. Concrete values are
+    checked (:func:`biped_jax.gait.check_problem`)."""
+    if _concrete(speed, power_limit, step_length):
+        gait.check_problem(speed, power_limit, step_length)
     return gait.GaitModel(design=robot_design(design), speed=jnp.asarray(speed, float),
                           step_length=jnp.asarray(step_length, float),
                           power_limit=jnp.asarray(power_limit, float), drives=joint_drives(design))
@@ -183,9 +195,14 @@ def with_ratio(design: DriveDesign, log_ratio: jax.Array,
 
 
 def nearest_gearhead(ratio: float, catalogue: drive_model.Catalogue | None = None) -> str:
-    """The catalogue gearhead whose ratio is nearest to ``ratio`` in log scale."""
+    """The catalogue gearhead whose ratio is nearest to ``ratio`` in log scale; ValueError for a ratio
+    more than a factor 2 outside the catalogue's range (no gearhead is near it)."""
     catalogue = catalogue or drive_model.load_catalogue()
     drive_model.check_ratio(ratio)
+    ratios = [g.ratio for g in catalogue.gearheads.values()]
+    if not 0.5 * min(ratios) <= ratio <= 2 * max(ratios):
+        raise ValueError(f"gear ratio {ratio!r} is far outside the catalogue's {min(ratios):g}-{max(ratios):g}: "
+                         "no gearhead is near it")
     return min(catalogue.gearheads.values(), key=lambda g: abs(math.log(g.ratio / ratio))).part
 
 
@@ -214,9 +231,7 @@ def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_l
     size = len(designs)
     per_design = lambda value: np.broadcast_to(np.asarray(value, dtype=float), (size,))  # noqa: E731
     speeds, limits, lengths = per_design(speed), per_design(power_limit), per_design(step_length)
-    for name, values in (("speed", speeds), ("power_limit", limits), ("step_length", lengths)):
-        if not np.all(np.isfinite(values) & (values > 0)):
-            raise ValueError(f"{name} must be positive, got {values.tolist()}")
+    gait.check_problem(speeds, limits, lengths)
     models = [gait_model(d, v, p, length) for d, v, p, length in zip(designs, speeds, limits, lengths)]
     names = names or [f"design {b}" for b in range(size)]
     solutions = solver.solve(names, models, x0=x0, progress=progress)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from biped_jax import outputs
 
 CONVERGED = "converged"
 
@@ -42,7 +43,7 @@ def plot_mass_scaling(study: dict, path: Path) -> None:
         axis.grid(alpha=0.3, which="both")
         axis.legend(fontsize=8)
     figure.suptitle("(a) requirement against robot mass: RE 25 42 V + GP 32 A 66:1, no power or voltage limit")
-    figure.savefig(path, dpi=120)
+    outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)
 
 
@@ -61,7 +62,7 @@ def plot_speed_limits(study: dict, path: Path) -> None:
                    "step 0.2 m")
     axis.grid(alpha=0.3, which="both")
     axis.legend(fontsize=8)
-    figure.savefig(path, dpi=120)
+    outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)
 
 
@@ -91,7 +92,7 @@ def plot_pareto(study: dict, path: Path) -> None:
     axis.set_title("(c) catalogue ratios x windings at 0.555 m/s, 20 W, 38 V (labels: ratio)")
     axis.grid(alpha=0.3)
     axis.legend(fontsize=7)
-    figure.savefig(path, dpi=120)
+    outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)
 
 
@@ -118,7 +119,7 @@ def plot_optimisation(study: dict, path: Path) -> None:
     axes[1].set_xlabel("co-design iteration")
     axes[1].set_ylabel("gear ratio N")
     axes[1].grid(alpha=0.3, which="both")
-    figure.savefig(path, dpi=120)
+    outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)
 
 

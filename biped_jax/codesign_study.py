@@ -10,7 +10,6 @@ program (and one gradient program) serves them all.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Callable
@@ -20,6 +19,7 @@ import numpy as np
 from biped_jax import augmented_lagrangian as al
 from biped_jax import codesign, drives, gait
 from biped_jax.gait_solver import GaitSolver
+from biped_jax import outputs
 
 BATCH = 16
 SPEEDS = (0.417, 0.555)  # M1/M3 and M2/M4, m/s
@@ -169,7 +169,7 @@ def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dyna
     solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)
     results = {"settings": {"steps": settings.steps, "degree": settings.degree, "batch": BATCH,
                             "torque_bound_Nm": settings.torque_bound, "dynamics": settings.dynamics}}
-    save = lambda: (out / "codesign.json").write_text(json.dumps(results, indent=2))  # noqa: E731
+    save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731
     say("compiling the gait problem (batch of 16); study (c) from heuristic starts")
     results["pareto"], x_start = pareto(solver, say)
     save()

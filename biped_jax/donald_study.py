@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Callable
 
@@ -12,6 +11,7 @@ import numpy as np
 
 from biped_jax import donald
 from biped_jax.drives import RPM
+from biped_jax import outputs
 
 #: Standing still after the last step, s (shows that the robot stays up).
 FINAL_STAND = 1.0
@@ -69,7 +69,7 @@ def plot_walk(run: donald.DonaldRun, path: Path) -> None:
     axes[2].legend(loc="upper left")
     axes[2].set_title(f"top view: supporting sole and centre of mass (smallest margin "
                       f"{1e3 * np.nanmin(margin):.1f} mm)")
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -92,7 +92,7 @@ def plot_torque_speed(run: donald.DonaldRun, drive: donald.Drive, path: Path) ->
         axis.grid(alpha=0.3)
     axes[0].set_ylabel("joint torque [N m]")
     axes[0].legend(loc="lower left", fontsize=8)
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -109,10 +109,10 @@ def run_donald(out: Path, steps: int = 8, progress: Callable[[str], None] | None
     report["steps_commanded"] = steps
     # walking speed over the stepping itself (not the initial settle and final stand)
     report["speed_mps"] = report["distance_m"] / (steps * float(gait.step_time))
-    (out / f"{name}.json").write_text(json.dumps(report, indent=2))
+    outputs.write_json(out / f"{name}.json", report)
     plot_walk(run, out / f"{name}_walk.png")
     plot_torque_speed(run, drive, out / f"{name}_torque_speed.png")
-    np.savez_compressed(out / f"{name}_replay.npz", t=np.asarray(run.t), qpos=np.asarray(run.qpos))
+    outputs.save_npz(out / f"{name}_replay.npz", compressed=True, t=np.asarray(run.t), qpos=np.asarray(run.qpos))
     return report
 
 
@@ -174,5 +174,5 @@ def run_faster(out: Path, steps: int = 8, progress: Callable[[str], None] | None
     report["candidates"] = candidates
     report["chosen_candidate"] = candidates.index(best)
     report["speed_gain_mps"] = best["speed_mps"] - candidates[0]["speed_mps"]
-    (out / "donald_faster.json").write_text(json.dumps(report, indent=2))
+    outputs.write_json(out / "donald_faster.json", report)
     return report

@@ -15,6 +15,7 @@ import numpy as np
 
 from biped_jax import drives
 from biped_jax.drives import MNM, RPM
+from biped_jax import outputs
 
 IMPACT_WINDOW = 0.05
 
@@ -166,7 +167,7 @@ def plot_motor_workspace(workspace: JointWorkspace, catalogue: drives.Catalogue,
         axis.grid(alpha=0.3)
     np.atleast_1d(axes)[0].set_ylabel("motor speed [rpm]")
     np.atleast_1d(axes)[0].legend(fontsize=8)
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -188,27 +189,55 @@ def save_workspaces(path, solutions) -> None:
         arrays[f"{s.name}_torque"] = np.asarray(tr.u)
         arrays[f"{s.name}_meta"] = np.array([s.step_time_s, s.mass_kg, s.speed_mps,
                                              1.0 if s.status == "converged" else 0.0])
-    np.savez(path, **arrays)
+    outputs.save_npz(path, **arrays)
 
 
 def load_workspaces(path) -> dict[str, tuple[JointWorkspace, dict]]:
-    """Reads :func:`save_workspaces`' file: name -> (workspace, {mass_kg, speed_mps, converged})."""
-    data = np.load(path)
+    """Reads :func:`save_workspaces`' file: name -> (workspace, {mass_kg, speed_mps, converged}).
+
+    Raises ValueError naming the file and the fault for anything else: not an ``.npz``, no gait in it,
+    a gait with missing arrays, inconsistent shapes, or NaN or infinite samples."""
+    import zipfile
+    fault = None if zipfile.is_zipfile(path) else "not a zip archive"
+    if fault is None:
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                arrays = {key: data[key] for key in data.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+            fault = str(error)
+    if fault is not None:
+        raise ValueError(f"{path}: not a gait file from `biped-jax reproduce` (not a readable .npz: {fault})")
+    names = [key[:-5] for key in arrays if key.endswith("_meta")]
+    if not names:
+        raise ValueError(f"{path}: no gait in it (expected NAME_meta, NAME_t, NAME_speed, NAME_torque arrays "
+                         "as `biped-jax reproduce` writes them)")
     out = {}
-    for key in data.files:
-        if key.endswith("_meta"):
-            name = key[:-5]
-            step_time, mass, speed, converged = data[key]
-            out[name] = (JointWorkspace(t=data[f"{name}_t"], speed=data[f"{name}_speed"],
-                                        torque=data[f"{name}_torque"], step_time=float(step_time)),
-                         {"mass_kg": float(mass), "speed_mps": float(speed), "converged": bool(converged)})
+    for name in names:
+        missing = [f"{name}_{part}" for part in ("t", "speed", "torque") if f"{name}_{part}" not in arrays]
+        if missing:
+            raise ValueError(f"{path}: gait {name} lacks {', '.join(missing)}")
+        meta, t, speed, torque = (np.asarray(arrays[f"{name}_{part}"], dtype=float)
+                                  for part in ("meta", "t", "speed", "torque"))
+        if meta.shape != (4,) or t.ndim != 1 or len(t) < 2 or speed.shape != (len(t), 4) \
+                or torque.shape != (len(t), 4):
+            raise ValueError(f"{path}: gait {name} has shapes meta {meta.shape}, t {t.shape}, speed {speed.shape}, "
+                             f"torque {torque.shape}; expected (4,), (T,), (T, 4), (T, 4) with T >= 2")
+        for part, values in (("meta", meta), ("t", t), ("speed", speed), ("torque", torque)):
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"{path}: gait {name} has {int(np.sum(~np.isfinite(values)))} NaN or "
+                                 f"infinite values in {name}_{part}")
+        step_time, mass, speed_mps, converged = meta
+        if not (step_time > 0 and mass > 0 and speed_mps > 0):
+            raise ValueError(f"{path}: gait {name} has step time {step_time} s, mass {mass} kg, speed "
+                             f"{speed_mps} m/s; all must be positive")
+        out[name] = (JointWorkspace(t=t, speed=speed, torque=torque, step_time=float(step_time)),
+                     {"mass_kg": float(mass), "speed_mps": float(speed_mps), "converged": bool(converged)})
     return out
 
 
 def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
     """Table 6, the selection per mass class, the paper's choice checked, Figs. 4-5; writes
     drives.json, drives.md, fig4_motor_M2.png and fig5_motor_M4.png into ``out``."""
-    import json
     from pathlib import Path
     out = Path(out)
     catalogue = drives.load_catalogue()
@@ -261,8 +290,8 @@ def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
                   f"- For {available[0]} alone: {slow_best['part'] if slow_best else 'none feasible'} "
                   f"(the paper's choice: {'feasible' if slow_paper['feasible'] else slow_paper['reason']})", "",
                   f"{sum(c['feasible'] for c in candidates)} of {len(candidates)} winding x ratio pairs pass.", ""]
-    (out / "drives.json").write_text(json.dumps(report, indent=2))
-    (out / "drives.md").write_text("\n".join(lines) + "\n")
+    outputs.write_json(out / "drives.json", report)
+    outputs.write_text(out / "drives.md", "\n".join(lines) + "\n")
     for name, figure in (("M2", "fig4_motor_M2.png"), ("M4", "fig5_motor_M4.png")):
         if name in gaits:
             plot_motor_workspace(gaits[name][0], catalogue, (51, 66.22, 79), name, out / figure)

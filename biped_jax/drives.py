@@ -19,6 +19,7 @@ from importlib import resources
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 RPM = 2 * math.pi / 60  # rad/s per rpm
 MNM = 1e-3  # N m per mN m
@@ -124,17 +125,31 @@ def check_ratio(ratio: float) -> float:
     return ratio
 
 
+def _check_concrete(name: str, value, unit: str, high: float = math.inf) -> None:
+    """Raises ValueError naming ``value`` unless every element is finite and in (0, high]; values
+    inside a trace pass unchecked (the drive functions are differentiated and vmapped)."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(value)):
+        return
+    values = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(values) & (values > 0) & (values <= high)):
+        limit = "> 0" if high == math.inf else f"in (0, {high:g}]"
+        raise ValueError(f"{name} must be finite and {limit}{' ' + unit if unit else ''}, got {values.tolist()}")
+
+
 # ----------------------------------------------------------------------------- the drive model
 
 def motor_torque(joint_torque: jax.Array, joint_speed: jax.Array, ratio, efficiency) -> jax.Array:
     """Motor torque T_m, N m (eq. 2.3): T / (N eta) when motoring (T omega >= 0), T eta / N when the
-    load back-drives the motor. Shapes broadcast."""
+    load back-drives the motor. Shapes broadcast; concrete ratios must be > 0, efficiencies in (0, 1]."""
+    _check_concrete("gear ratio", ratio, "")
+    _check_concrete("gear efficiency", efficiency, "", high=1.0)
     motoring = joint_torque * joint_speed >= 0
     return jnp.where(motoring, joint_torque / (ratio * efficiency), joint_torque * efficiency / ratio)
 
 
 def motor_speed(joint_speed: jax.Array, ratio) -> jax.Array:
     """Motor speed omega_m = N omega, rad/s (eq. 2.4)."""
+    _check_concrete("gear ratio", ratio, "")
     return ratio * joint_speed
 
 
@@ -160,11 +175,13 @@ def electrical_power(torque_at_motor: jax.Array, speed_at_motor: jax.Array, moto
 
 def no_load_speed(motor: Motor, supply_voltage: float) -> float:
     """No-load speed at a supply voltage, rad/s: eq. 2.5, n_mV = n_m V_s / V_m, with n_m = V_m / k_t."""
+    _check_concrete("supply_voltage", supply_voltage, "V")
     return supply_voltage / motor.torque_constant
 
 
 def stall_torque(motor: Motor, supply_voltage: float) -> float:
     """Torque at zero speed at a supply voltage, N m: k_t V_s / R."""
+    _check_concrete("supply_voltage", supply_voltage, "V")
     return motor.torque_constant * supply_voltage / motor.resistance
 
 
@@ -185,6 +202,7 @@ def voltage_margin(torque_at_motor, speed_at_motor, motor: Motor, supply_voltage
     For motoring points (T_m omega_m >= 0) this is exactly k_t (line speed - |omega_m|); back-driven
     points need less voltage than the back-EMF alone.
     """
+    _check_concrete("supply_voltage", supply_voltage, "V")
     needed = jnp.abs(voltage(torque_at_motor, speed_at_motor, motor))
     return supply_voltage - needed
 

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.interpolate import BSpline, CubicHermiteSpline
 
+from biped_jax import checks
 from biped_jax import drives as drive_model
 from biped_jax import hybrid_step as hs
 from biped_jax import planar_chain
@@ -73,15 +74,8 @@ NO_POWER_LIMIT = 1e6
 REFINEMENT = 4
 
 
-def _check_integer(name: str, value, low: int, high: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= high:
-        raise ValueError(f"GaitSettings.{name} must be an integer in [{low}, {high}], got {value!r}")
-
-
 def _check_number(name: str, value, low: float, high: float, unit: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-            or not (math.isfinite(value) and low < value <= high):
-        raise ValueError(f"GaitSettings.{name} must be a number in ({low}, {high}] {unit}, got {value!r}")
+    checks.number_in(f"GaitSettings.{name}", value, low, high, unit)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,14 +116,10 @@ class GaitSettings:
     def __post_init__(self):
         if self.dynamics not in DYNAMICS:
             raise ValueError(f"GaitSettings.dynamics must be one of {DYNAMICS}, got {self.dynamics!r}")
-        _check_integer("spans", self.spans, 1, 200)
-        _check_integer("degree", self.degree, 2, 7)
-        _check_integer("substeps", self.substeps, 2, 400)
-        _check_integer("segments", self.segments, 1, self.spans)
+        checks.gait_space(self.spans, self.degree, self.substeps, prefix="GaitSettings.")
+        checks.integer_in("GaitSettings.segments", self.segments, 1, self.spans)
         if self.spans % self.segments:
             raise ValueError(f"GaitSettings.segments must divide spans ({self.spans}), got {self.segments}")
-        if self.substeps % 2:
-            raise ValueError(f"GaitSettings.substeps must be even (Simpson's rule), got {self.substeps}")
         if isinstance(self.grading, bool) or not isinstance(self.grading, (int, float)) \
                 or not 0.0 <= self.grading <= 1.0:
             raise ValueError(f"GaitSettings.grading must be in [0, 1], got {self.grading!r}")
@@ -181,6 +171,20 @@ class GaitModel:
     drives: drive_model.JointDrives
 
 
+def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> None:
+    """Raises ValueError naming a speed (m/s), power limit (W) or step length (m) that is not a finite
+    positive number (scalars or arrays, one value per problem), or a step beyond the legs' reach."""
+    for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
+                              ("step_length", step_length, "m")):
+        values = np.asarray(value, dtype=float)
+        if not np.all(np.isfinite(values) & (values > 0)):
+            raise ValueError(f"{name} must be positive and finite ({unit}), got {values.tolist()}")
+    reach = 2 * PLANAR_SPECS[mass_class].leg_length
+    if np.any(np.asarray(step_length) >= reach):
+        raise ValueError(f"step_length {np.asarray(step_length).tolist()} m is beyond the legs' reach "
+                         f"(< {reach:.3g} m)")
+
+
 def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
     """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
     drives (the paper's problem; ``biped_jax.codesign.gait_model`` fits real ones); raises ValueError
@@ -191,9 +195,7 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
                 or not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be positive, got {value!r} ({unit}; finite)")
     design = hs.planar_design(mass_class)
-    reach = 2 * PLANAR_SPECS[mass_class].leg_length
-    if step_length >= reach:
-        raise ValueError(f"step_length {step_length} m is beyond the legs' reach (< {reach:.3g} m)")
+    check_problem(speed, power_limit, step_length, mass_class)
     return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),
                      power_limit=jnp.asarray(float(power_limit)),

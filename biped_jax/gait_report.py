@@ -13,6 +13,7 @@ import numpy as np
 from biped_jax.drives import RPM
 from biped_jax.gait import ACTUATED_INDEX, CONSTRAINT_GROUPS
 from biped_jax.gait_solver import GaitSolution
+from biped_jax import outputs
 
 JOINTS = ("H1", "K1", "H2", "K2")
 #: Fraction of the step time at each end treated as "near an impact" when quoting spike-free maxima
@@ -137,7 +138,7 @@ def plot_figure_2(solutions: list[GaitSolution], path: Path,
         axis.grid(alpha=0.3)
     axes[0, 0].legend()
     figure.suptitle(title)
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -158,7 +159,7 @@ def plot_figure_3(solutions: list[GaitSolution], path: Path) -> None:
     for axis in axes:
         axis.grid(alpha=0.3)
     axes[0].legend()
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -178,5 +179,5 @@ def plot_convergence(solutions: list[GaitSolution], path: Path) -> None:
         axis.set_xlabel("gradient evaluations")
         axis.grid(alpha=0.3)
         axis.legend()
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)

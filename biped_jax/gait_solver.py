@@ -62,7 +62,7 @@ class GaitSolution:
 
     Attributes:
       name: label (e.g. "M2"). mass_kg, speed_mps, power_limit_W, step_length_m, step_time_s: the problem.
-      status: converged, infeasible, iteration limit or diverged. cost: J, N^2 m^2 s.
+      status: converged, infeasible, stalled, iteration limit or diverged (or grid dependent). cost: J, N^2 m^2 s.
       violations: largest violation per constraint group, own units. max_violation: their maximum
         (mixed units; each is checked against the tolerance in its own unit).
       stationarity: |grad of the Lagrangian|_inf (scaled). outer_iterations, gradients: counts.

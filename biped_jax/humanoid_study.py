@@ -14,6 +14,7 @@ import numpy as np
 
 from biped_jax import gait, humanoid, study
 from biped_jax.gait_report import _pyplot
+from biped_jax import outputs
 
 #: The paper's drive of the 12 kg robot (Section 2.3), drawn beside the replay's joint demand.
 PAPER_DRIVE = ("RE25-42V", 66.22)
@@ -35,12 +36,21 @@ def solved_gait(name: str, settings: gait.GaitSettings, gaits: Path | None,
         source = gaits / "results.json"
         if not source.is_file():
             raise FileNotFoundError(f"no study results at {source}: run `biped-jax reproduce --out {gaits}` first")
-        results = json.loads(source.read_text())
-        records = {r["model"]: r for r in results["models"]}
+        try:
+            results = json.loads(source.read_text())
+            records = {r["model"]: r for r in results["models"]}
+            saved = gait.GaitSettings(**results["settings"])
+        except ValueError as error:  # JSONDecodeError is one; so are GaitSettings' checks
+            raise ValueError(f"{source}: not a study result of `biped-jax reproduce` ({error})") from None
+        except (KeyError, TypeError) as error:
+            raise ValueError(f"{source}: not a study result of `biped-jax reproduce` (no {error})") from None
         if name not in records:
             raise ValueError(f"{source} holds no model {name!r}")
-        saved = gait.GaitSettings(**results["settings"])
-        return np.asarray(records[name]["decision_vector"]), saved, records[name]["status"]
+        x = np.asarray(records[name].get("decision_vector"), dtype=float)
+        if x.shape != (saved.size,) or not np.all(np.isfinite(x)):
+            raise ValueError(f"{source}: model {name}'s decision vector has shape {x.shape} or non-finite "
+                             f"values; its settings need ({saved.size},)")
+        return x, saved, records[name]["status"]
     from biped_jax.gait_solver import GaitSolver
     _, model = paper_model(name)
     progress(f"compiling the gait problem and solving {name}")
@@ -65,7 +75,7 @@ def plot_walk(run: humanoid.Replay, com: np.ndarray, path: Path) -> None:
             axis.axvline(run.t[k], color="0.8", lw=0.5)
     axes[0].legend(loc="upper left")
     axes[1].set_xlabel("time [s] (grey: touchdowns)")
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -83,7 +93,7 @@ def plot_tracking(run: humanoid.Replay, path: Path) -> None:
         axis.grid(alpha=0.3)
         axis.legend(loc="upper right", fontsize=8, ncol=2)
     axes[2].set_xlabel("time [s]")
-    figure.savefig(path, dpi=110)
+    outputs.save_figure(figure, path, dpi=110)
     plt.close(figure)
 
 
@@ -130,7 +140,7 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
     report.update({"model": name, "mass_class": mass_class, "gait_status": status,
                    "gait_settings": dataclasses.asdict(settings),
                    "steps_commanded": steps})
-    (out / "humanoid.json").write_text(json.dumps(report, indent=2))
+    outputs.write_json(out / "humanoid.json", report)
     com = centre_of_mass(mj_model, run.qpos)
     plot_walk(run, com, out / "humanoid_walk.png")
     plot_tracking(run, out / "humanoid_tracking.png")
@@ -140,5 +150,5 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
     winding, ratio = PAPER_DRIVE
     drive_selection.plot_motor_workspace(workspace, drives.load_catalogue(), (ratio,), f"humanoid replay of {name}",
                                          out / "humanoid_torque_speed.png", windings=(winding,), window=0.0)
-    np.savez_compressed(out / "humanoid_replay.npz", t=run.t, qpos=free_base_qpos(run.qpos))
+    outputs.save_npz(out / "humanoid_replay.npz", compressed=True, t=run.t, qpos=free_base_qpos(run.qpos))
     return report

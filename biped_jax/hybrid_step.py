@@ -29,6 +29,7 @@ from biped_jax.design import (
     Design,
     DesignLayout,
     apply_design,
+    check_design,
     design_layout,
     nominal_design,
 )
@@ -138,14 +139,23 @@ def planar_design(mass_class: str = "12kg") -> Design:
 
 
 def with_design(biped: PlanarBiped, design: Design) -> PlanarBiped:
-    """Both models of ``biped`` carrying ``design`` (traceable; vmap over designs)."""
+    """Both models of ``biped`` carrying ``design`` (traceable; vmap over designs). A concrete design
+    is checked first (:func:`~biped_jax.design.check_design`: ValueError naming a non-positive or
+    non-finite mass, a negative armature or damping, a wrong shape)."""
     pinned_layout, floating_layout = planar_layouts()
+    if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(design)):
+        check_design(design, pinned_layout)
     return PlanarBiped(pinned=apply_design(biped.pinned, pinned_layout, design),
                        floating=apply_design(biped.floating, floating_layout, design))
 
 
 def with_timestep(model, timestep):
-    """``model`` (an ``mjx.Model``) integrating with ``timestep`` s; traceable."""
+    """``model`` (an ``mjx.Model``) integrating with ``timestep`` s; traceable. A concrete timestep
+    must be a finite number > 0 (ValueError naming it)."""
+    if not isinstance(timestep, jax.core.Tracer):
+        value = np.asarray(timestep)
+        if value.shape or not np.isfinite(value) or not value > 0:
+            raise ValueError(f"timestep must be a finite number > 0 s, got {timestep!r}")
     return model.replace(opt=model.opt.replace(timestep=jnp.asarray(timestep, model.opt.timestep.dtype)))
 
 
@@ -159,6 +169,7 @@ def _check_shape(name: str, value, shape: tuple) -> jax.Array:
 
 
 def _positions(model, q):
+    q = _check_shape("q", q, (model.nq,))
     data = mjx.make_data(model).replace(qpos=q)
     return mjx.kinematics(model, data)
 
@@ -173,6 +184,7 @@ def site_position(model, q: jax.Array, site: str) -> jax.Array:
 
 def site_velocity(model, q: jax.Array, qd: jax.Array, site: str) -> tuple[jax.Array, jax.Array]:
     """(position (3,) m, velocity (3,) m/s) of a named site."""
+    q, qd = _check_shape("q", q, (model.nq,)), _check_shape("qd", qd, (model.nv,))
     return jax.jvp(lambda q_: site_position(model, q_, site), (q,), (qd,))
 
 

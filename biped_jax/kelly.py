@@ -16,7 +16,6 @@ limit and no power limit; both are set far out of reach here (:data:`NO_FRICTION
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Callable
 
@@ -27,6 +26,7 @@ from biped_jax import augmented_lagrangian as al
 from biped_jax import gait, gait_report
 from biped_jax.gait_solver import GaitSolution, GaitSolver
 from biped_jax.robot_specs import KELLY_BIPED
+from biped_jax import outputs
 
 STEP_LENGTH = 0.5  # m
 STEP_TIME = 0.7  # s
@@ -123,7 +123,7 @@ def run_kelly(out: Path, settings: gait.GaitSettings = KELLY_SETTINGS,
     say(f"{solutions[0].status}, J = {solutions[0].cost:.2f}; refining on {gait.refined(settings, 2).steps} steps")
     fine = refine(solutions[0], settings, progress=report)
     record = kelly_record(solutions, fine, settings)
-    (out / "kelly.json").write_text(json.dumps(record, indent=2))
+    outputs.write_json(out / "kelly.json", record)
     gait_report.plot_figure_2([fine], out / "kelly_step.png",
                               title=f"Kelly's five-link biped: optimal step, J = {fine.cost:.2f} N^2 m^2 s")
     return record

@@ -48,6 +48,8 @@ def model_path(name: str) -> Path:
 def load_mj_model_from_path(path: str | Path) -> mujoco.MjModel:
     """Compiles an MJCF file, turning MuJoCo's parse errors into one naming the file."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"MJCF file {str(path)!r} is a folder, not a file")
     if not path.is_file():
         raise FileNotFoundError(f"MJCF file {str(path)!r} does not exist")
     try:

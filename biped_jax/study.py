@@ -4,7 +4,6 @@ smallest power limit at which each model still walks."""
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
 from typing import Callable
@@ -16,6 +15,7 @@ from biped_jax import augmented_lagrangian as al
 from biped_jax import drive_selection, gait, gait_report
 from biped_jax import gait_solver
 from biped_jax.gait_solver import GaitSolution, GaitSolver
+from biped_jax import outputs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -53,7 +53,9 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bise
     bisection_solver = solver.with_options(max_outer=12)
     high = np.array([s.power_limit_W if s.status == al.CONVERGED else math.nan for s in solutions])
     low = np.zeros(len(solutions))
-    status_below = ["not tried"] * len(solutions)
+    # a model without a feasible gait at its own limit has no smallest limit (NaN, null in JSON)
+    status_below = ["not tried" if np.isfinite(h) else f"no feasible gait at the model's own limit ({s.status})"
+                    for h, s in zip(high, solutions)]
     warm = np.stack([s.x for s in solutions])
     for k in range(bisections):
         middle = np.where(np.isfinite(high), 0.5 * (low + high), np.array([r.power_limit for r in rows]))
@@ -121,7 +123,7 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
         "solver": dataclasses.asdict(solver.options),
         "violation_tolerance_own_units": 1e-4,
     }
-    (out / "results.json").write_text(json.dumps(results, indent=2))
+    outputs.write_json(out / "results.json", results)
     tables = ["# The paper's four models (layout of Tables 4 and 5)", ""]
     tables += [gait_report.markdown_table(s) for s in solutions]
     tables += ["## At M_W = 20 W (the paper: M3 and M4 not solvable)", "",
@@ -133,7 +135,7 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
                "| model | M_W [W] | bracket [W] |", "|---|---|---|"]
     tables += [f"| {n} | {m['min_power_limit_W']:.2f} | {m['bracket_W'][0]:.2f}-{m['bracket_W'][1]:.2f} |"
                for n, m in zip(names, minimal)]
-    (out / "tables.md").write_text("\n".join(tables) + "\n")
+    outputs.write_text(out / "tables.md", "\n".join(tables) + "\n")
     gait_report.plot_figure_2(solutions, out / "fig2_trajectories.png")
     gait_report.plot_figure_3(solutions, out / "fig3_torque_rpm.png")
     gait_report.plot_convergence(solutions, out / "convergence.png")

@@ -79,6 +79,17 @@ def test_infeasible_problem_is_reported_with_its_violation():
     assert result.violation[0] == pytest.approx(1.0, abs=1e-3)  # x = 0 splits the two demands
 
 
+def test_a_tiny_violation_left_at_the_penalty_cap_is_stalled_not_infeasible():
+    # x >= 1 and x <= 1 - 2e-5 cannot both hold; the best point misses each by 1e-5 (scaled), far below
+    # what would justify calling a real problem infeasible.
+    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2),
+                                    equalities=lambda x, p: jnp.zeros(0),
+                                    inequalities=lambda x, p: jnp.array([1.0 - x[0], x[0] - (1.0 - 2e-5)]))
+    result = al.solve(problem, jnp.zeros((1, 1)), jnp.zeros((1,)), OPTIONS)
+    assert result.status == [al.STALLED]
+    assert result.violation[0] == pytest.approx(1e-5, rel=0.05)
+
+
 def test_nan_is_caught_and_reported_as_diverged():
     problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2) + jnp.log(x[0] - 5.0),
                                     equalities=lambda x, p: jnp.zeros(0),

@@ -1,0 +1,214 @@
+"""Result files: strict JSON, atomic writes, an output folder checked before any work, and a manifest
+that says which files a run wrote and whether it finished.
+
+Every study writes through these functions, so that
+
+- no JSON file contains ``NaN`` or ``Infinity`` (not JSON; other tools refuse it): a non-finite number
+  is written as ``null`` and the record around it says why (a status);
+- a file is either the old one or the complete new one, never half written (temporary file in the
+  same folder, then :func:`os.replace`);
+- ``manifest.json`` names the command, the package versions, the start and end times, the state
+  (``running``, ``completed``, ``interrupted``, ``failed``) and every file this run wrote; the files
+  of the run before are moved to ``previous/`` when a new one starts, so a stale file can never pass
+  for a new one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime
+import json
+import math
+import os
+import platform
+import sys
+import tempfile
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+MANIFEST = "manifest.json"
+#: Subfolder that receives an earlier run's files when a new run starts in the same folder.
+PREVIOUS = "previous"
+
+
+def check_output_dir(path: Path) -> Path:
+    """Refuses, before any computing, an output folder that cannot be written: an existing file, a
+    path below a file, or a folder (or its nearest existing parent) without write permission. Creates
+    nothing. Raises ValueError naming the path and the reason; returns the path."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {path}: is a file, not a folder")
+    existing = path
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"--out {path}: {existing} is a file, so no folder can be made below it")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"--out {path}: {existing} is not writable")
+    return path
+
+
+def finite_or_none(value: Any) -> Any:
+    """``value`` with every non-finite float (Python or numpy, at any depth of dicts, lists, tuples and
+    arrays) replaced by None, and numpy scalars and arrays by Python numbers and lists."""
+    if isinstance(value, dict):
+        return {str(k): finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_none(v) for v in value]
+    if hasattr(value, "tolist") and not isinstance(value, (str, bytes)):  # numpy arrays and scalars
+        return finite_or_none(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def json_text(record: Any) -> str:
+    """Strict JSON (``allow_nan=False``) of ``record`` after :func:`finite_or_none`."""
+    return json.dumps(finite_or_none(record), indent=2, allow_nan=False) + "\n"
+
+
+@contextlib.contextmanager
+def _atomic(path: Path, suffix: str, listed: bool = True):
+    """Yields a temporary path in ``path``'s folder; moves it onto ``path`` only if the block ends
+    without an exception (else removes it); ``listed`` adds it to the running manifest."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
+    os.close(handle)
+    try:
+        yield Path(temporary)
+        os.replace(temporary, path)
+    finally:
+        if os.path.exists(temporary):
+            os.remove(temporary)
+    if listed:
+        _record(path)
+
+
+def write_text(path: Path, text: str) -> Path:
+    """Writes ``text`` to ``path`` atomically."""
+    with _atomic(path, ".tmp") as temporary:
+        temporary.write_text(text)
+    return Path(path)
+
+
+def write_json(path: Path, record: Any) -> Path:
+    """Writes ``record`` as strict JSON (see :func:`json_text`) atomically."""
+    return write_text(path, json_text(record))
+
+
+def save_figure(figure, path: Path, dpi: int = 110) -> Path:
+    """Saves a matplotlib figure atomically (the format from ``path``'s suffix)."""
+    path = Path(path)
+    with _atomic(path, path.suffix) as temporary:
+        figure.savefig(temporary, dpi=dpi, format=path.suffix.lstrip("."))
+    return path
+
+
+def save_npz(path: Path, compressed: bool = False, **arrays) -> Path:
+    """Saves numpy arrays to an ``.npz`` file atomically."""
+    import numpy as np
+    with _atomic(Path(path), ".npz") as temporary:
+        (np.savez_compressed if compressed else np.savez)(temporary, **arrays)
+    return Path(path)
+
+
+def _versions() -> dict:
+    names = ("biped_jax", "jax", "jaxlib", "mujoco", "mujoco-mjx", "optax", "numpy")
+    found = {}
+    for name in names:
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = None
+    return found | {"python": platform.python_version()}
+
+
+class _Run:
+    """The manifest of the run under way (at most one per process)."""
+
+    def __init__(self, folder: Path, command: list[str]):
+        self.folder = Path(folder)
+        self.record = {"command": command, "state": "running", "versions": _versions(),
+                       "started": _now(), "ended": None, "files": [], "message": None}
+
+    def write(self):
+        path = self.folder / MANIFEST
+        with _atomic(path, ".tmp", listed=False) as temporary:
+            temporary.write_text(json_text(self.record))
+
+
+_current: _Run | None = None
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+def _record(path: Path):
+    if _current is None:
+        return
+    try:
+        relative = str(Path(path).resolve().relative_to(_current.folder.resolve()))
+    except ValueError:
+        return
+    if relative != MANIFEST and relative not in _current.record["files"]:
+        _current.record["files"].append(relative)
+        _current.write()
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """The manifest in ``folder``, or None when there is none (or it is unreadable)."""
+    try:
+        return json.loads((Path(folder) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _set_aside_previous(folder: Path) -> None:
+    """Moves the files an earlier run's manifest lists into ``folder/previous/`` (replacing what an
+    even earlier run left there), so that none of them passes for a result of the run now starting."""
+    earlier = read_manifest(folder)
+    if not earlier:
+        return
+    aside = folder / PREVIOUS
+    for name in earlier.get("files", []):
+        source = folder / name
+        if source.is_file() and aside not in source.parents:
+            target = aside / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(source, target)
+    if aside.is_dir():
+        os.replace(folder / MANIFEST, aside / MANIFEST)
+
+
+@contextlib.contextmanager
+def run_manifest(folder: Path, command: list[str] | None = None):
+    """Keeps ``folder/manifest.json`` for the block: state ``running`` with no files at the start,
+    each file written through this module listed as it lands, and at the end ``completed``,
+    ``interrupted`` (Ctrl-C) or ``failed`` (with the error), and the end time. The files an earlier
+    run's manifest listed are moved to ``folder/previous/`` first. The exception, if any, propagates."""
+    global _current
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    _set_aside_previous(folder)
+    run = _Run(folder, list(sys.argv) if command is None else command)
+    previous, _current = _current, run
+    run.write()
+    try:
+        yield run
+    except KeyboardInterrupt:
+        run.record.update(state="interrupted", message="interrupted by the user (Ctrl-C)")
+        raise
+    except BaseException as error:
+        run.record.update(state="failed", message=f"{type(error).__name__}: {error}")
+        raise
+    else:
+        run.record["state"] = "completed"
+    finally:
+        run.record["ended"] = _now()
+        run.write()
+        _current = previous

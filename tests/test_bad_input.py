@@ -1,0 +1,222 @@
+"""Bad input gets a named error before any computing, and no result file is ever wrong.
+
+Table-driven over the command line (each row: the arguments, a text the error must contain) and over
+the files a command reads; a fault test interrupts a run and checks what the folder says about it.
+"""
+
+import json
+import math
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from biped_jax import cli, outputs
+
+
+def _error(capsys, argv) -> str:
+    with pytest.raises(SystemExit) as stop:
+        cli.main(argv)
+    assert stop.value.code == 2
+    return capsys.readouterr().err
+
+
+@pytest.fixture
+def a_file(tmp_path):
+    path = tmp_path / "a_file"
+    path.write_text("not a folder")
+    return path
+
+
+CLI_ROWS = [
+    (["reproduce", "--spans", "0"], "--spans must be an integer in [1, 200], got '0'"),
+    (["reproduce", "--spans", "2.5"], "got '2.5'"),
+    (["reproduce", "--degree", "100"], "--degree must be an integer in [2, 7], got '100'"),
+    (["reproduce", "--substeps", "3"], "--substeps must be even"),
+    (["reproduce", "--bisections", "0"], "--bisections must be an integer in [1, 30], got '0'"),
+    (["kelly", "--degree", "1"], "--degree must be an integer in [2, 7], got '1'"),
+    (["donald", "--steps", "-1"], "--steps must be an integer in [1, 1000], got '-1'"),
+    (["humanoid", "--model", "M9"], "'M9'"),
+    (["codesign", "--iterations", "0"], "--iterations must be an integer in [1, 1000], got '0'"),
+    (["reproduce", "--dynamics", "euler"], "'euler'"),
+]
+
+
+@pytest.mark.parametrize("argv, message", CLI_ROWS, ids=[" ".join(r[0]) for r in CLI_ROWS])
+def test_bad_arguments_are_named_with_the_subcommands_usage(capsys, tmp_path, argv, message):
+    out = tmp_path / "never"
+    error = _error(capsys, argv + ["--out", str(out)])
+    assert message in error
+    assert f"usage: biped-jax {argv[0]}" in error  # the subcommand's usage, not the top level's
+    assert not out.exists()  # refused before anything was made
+
+
+@pytest.mark.parametrize("below", [False, True], ids=["a file", "below a file"])
+def test_an_output_folder_that_cannot_exist_is_refused_first(capsys, a_file, below):
+    target = a_file / "sub" if below else a_file
+    error = _error(capsys, ["reproduce", "--out", str(target)])
+    assert str(target) in error and "is a file" in error
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root may write anywhere")
+def test_an_unwritable_output_folder_is_refused_first(capsys, tmp_path):
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    error = _error(capsys, ["reproduce", "--out", str(locked / "out")])
+    assert "not writable" in error
+
+
+def test_the_argument_check_runs_before_jax_is_imported():
+    code = ("import sys\nfrom biped_jax import cli\ntry:\n    cli.main(['reproduce', '--spans', '0'])\n"
+            "except SystemExit:\n    pass\nassert 'jax' not in sys.modules, 'jax imported'\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0, run.stderr
+
+
+def _gait_file(path, **changes):
+    """A drive-study input in the layout `biped-jax reproduce` writes, with entries changed/removed."""
+    t = np.linspace(0.0, 0.36, 50)
+    arrays = {"M2_t": t, "M2_speed": np.ones((50, 4)), "M2_torque": np.ones((50, 4)),
+              "M2_meta": np.array([0.36, 12.0, 0.555, 1.0])}
+    for key, value in changes.items():
+        if value is None:
+            arrays.pop(key)
+        else:
+            arrays[key] = value
+    np.savez(path / "trajectories.npz", **arrays)
+
+
+def _nan_torque():
+    torque = np.ones((50, 4))
+    torque[7, 2] = np.nan
+    return torque
+
+
+GAIT_FILE_ROWS = [
+    ({"M2_torque": _nan_torque()}, "1 NaN or infinite values in M2_torque"),
+    ({"M2_meta": None}, "no gait in it"),
+    ({"M2_speed": None}, "gait M2 lacks M2_speed"),
+    ({"M2_t": np.zeros(0), "M2_speed": np.zeros((0, 4)), "M2_torque": np.zeros((0, 4))}, "T >= 2"),
+    ({"M2_meta": np.array([0.36, -12.0, 0.555, 1.0])}, "mass -12.0 kg"),
+]
+
+
+@pytest.mark.parametrize("changes, message", GAIT_FILE_ROWS, ids=[r[1] for r in GAIT_FILE_ROWS])
+def test_a_broken_gait_file_is_named_and_nothing_is_written(capsys, tmp_path, changes, message):
+    gaits, out = tmp_path / "gaits", tmp_path / "out"
+    gaits.mkdir()
+    _gait_file(gaits, **changes)
+    error = _error(capsys, ["drives", "--gaits", str(gaits), "--out", str(out)])
+    assert message in error and "trajectories.npz" in error
+    assert not (out / "drives.json").exists()
+    assert outputs.read_manifest(out)["state"] == "failed"
+
+
+def test_a_file_that_is_not_npz_is_named(capsys, tmp_path):
+    (tmp_path / "trajectories.npz").write_text("hello")
+    error = _error(capsys, ["drives", "--gaits", str(tmp_path), "--out", str(tmp_path / "out")])
+    assert "not a readable .npz" in error and "pickled" not in error
+
+
+def test_missing_inputs_are_named(capsys, tmp_path):
+    assert "does not exist" in _error(capsys, ["drives", "--gaits", str(tmp_path / "nowhere")])
+    assert "does not exist" in _error(capsys, ["humanoid", "--gaits", str(tmp_path / "nowhere")])
+    error = _error(capsys, ["view", "donald", "--replay", str(tmp_path / "missing.npz")])
+    assert "missing.npz" in error and "does not exist" in error
+
+
+def test_json_is_strict_and_missing_values_are_null(tmp_path):
+    record = {"a": math.nan, "b": [1.0, math.inf, np.float64(-np.inf)], "c": np.array([1.0, np.nan]),
+              "d": {"e": np.float32(2.5), "f": np.int64(3)}, "g": (math.nan,)}
+    path = outputs.write_json(tmp_path / "r.json", record)
+    text = path.read_text()
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"a": None, "b": [1.0, None, None], "c": [1.0, None],
+                                "d": {"e": 2.5, "f": 3}, "g": [None]}
+    assert [p.name for p in tmp_path.iterdir()] == ["r.json"]  # no temporary left behind
+
+
+def test_a_failed_write_leaves_the_old_file(tmp_path):
+    path = outputs.write_json(tmp_path / "r.json", {"old": 1})
+
+    class Unserialisable:
+        pass
+    with pytest.raises(TypeError):
+        outputs.write_json(path, {"new": Unserialisable()})
+    assert json.loads(path.read_text()) == {"old": 1}
+    assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
+
+
+def test_an_interrupted_run_says_so_and_sets_earlier_results_aside(capsys, tmp_path, monkeypatch):
+    # an earlier, completed run left a results file
+    with outputs.run_manifest(tmp_path, ["earlier"]):
+        outputs.write_json(tmp_path / "results.json", {"from": "earlier"})
+    assert outputs.read_manifest(tmp_path)["state"] == "completed"
+
+    def interrupted_study(out):
+        outputs.write_json(out / "results.json", {"from": "this run"})
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, "heuristic_steps", interrupted_study)
+    monkeypatch.setattr(cli, "configure_jax", lambda: None)
+    assert cli.main(["step", "--out", str(tmp_path)]) == 130
+    error = capsys.readouterr().err
+    assert "interrupted" in error and "results.json" in error and "Traceback" not in error
+    manifest = outputs.read_manifest(tmp_path)
+    assert manifest["state"] == "interrupted" and manifest["files"] == ["results.json"]
+    assert manifest["command"] == ["biped-jax", "step", "--out", str(tmp_path)] and manifest["ended"]
+    assert json.loads((tmp_path / "results.json").read_text()) == {"from": "this run"}
+    earlier = tmp_path / outputs.PREVIOUS
+    assert json.loads((earlier / "results.json").read_text()) == {"from": "earlier"}
+    assert json.loads((earlier / outputs.MANIFEST).read_text())["command"] == ["earlier"]
+
+
+def _api_rows():
+    """(label, call, text the message must contain); built lazily (the calls import JAX)."""
+    import dataclasses
+
+    from biped_jax import codesign, drives, gait, robots
+    from biped_jax import hybrid_step as hs
+    biped, design = hs.load_planar_biped("12kg"), hs.planar_design("12kg")
+    masses = lambda *m: dataclasses.replace(design, link_mass=np.array(m, dtype=float))  # noqa: E731
+    motor = drives.load_catalogue().motor("RE25-42V")
+    reference = codesign.catalogue_design()
+    return [
+        ("zero link mass", lambda: hs.with_design(biped, masses(0, 1, 1, 1, 1)), "link_mass must be positive"),
+        ("NaN link mass", lambda: hs.with_design(biped, masses(np.nan, 1, 1, 1, 1)), "link_mass must be finite"),
+        ("wrong-length q", lambda: hs.center_of_mass(biped.pinned, np.zeros(3)), "q must have shape (5,)"),
+        ("wrong-length q (foot)", lambda: hs.swing_foot(biped.pinned, np.zeros(4), np.zeros(5)), "shape (5,)"),
+        ("negative timestep", lambda: hs.with_timestep(biped.pinned, -0.005), "got -0.005"),
+        ("zero timestep", lambda: hs.with_timestep(biped.pinned, 0.0), "timestep must be"),
+        ("negative supply", lambda: drives.no_load_speed(motor, -38.0), "supply_voltage must be finite and > 0 V"),
+        ("negative ratio", lambda: drives.motor_torque(1.0, 1.0, -66.0, 0.7), "gear ratio must be finite"),
+        ("efficiency above 1", lambda: drives.motor_torque(1.0, 1.0, 66.0, 1.5), "got 1.5"),
+        ("ratio far off the catalogue", lambda: codesign.nearest_gearhead(1e9), "far outside the catalogue"),
+        ("MJCF folder", lambda: robots.load_mj_model_from_path(robots.models_dir()), "is a folder"),
+        ("negative speed", lambda: codesign.gait_model(reference, -1.0, 20.0), "speed must be positive"),
+        ("NaN speed", lambda: codesign.gait_model(reference, math.nan, 20.0), "got nan"),
+        ("step beyond reach", lambda: codesign.solve_designs(None, [reference], 0.5, 20.0, step_length=5.0),
+         "beyond the legs' reach"),
+        ("no structure", lambda: codesign.robot_design(dataclasses.replace(reference, structure_mass=np.zeros(5))),
+         "link_mass must be positive"),
+        ("settings: negative friction", lambda: gait.GaitSettings(friction=-0.1), "friction"),
+        ("settings: steps as float", lambda: gait.GaitSettings(spans=2.5), "got 2.5"),
+    ]
+
+
+def test_every_impossible_api_value_is_named():
+    for label, call, message in _api_rows():
+        with pytest.raises(ValueError) as error:
+            call()
+        assert message in str(error.value), (label, str(error.value))
+
+
+@pytest.mark.parametrize("content, message", [
+    ('{"settings": {}}', "no 'models'"), ("{not json", "not a study result"),
+    ('{"models": [{"model": "M2", "status": "converged"}], "settings": {}}', "decision vector")],
+    ids=["no models", "corrupt", "no decision vector"])
+def test_a_broken_study_result_is_named(capsys, tmp_path, content, message):
+    (tmp_path / "results.json").write_text(content)
+    error = _error(capsys, ["humanoid", "--gaits", str(tmp_path), "--out", str(tmp_path / "out")])
+    assert message in error and "results.json" in error
