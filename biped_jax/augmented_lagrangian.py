@@ -119,6 +119,13 @@ class SolverOptions:
         (problems with residuals only).
       cap_first_step: keep optax's unit-length cap on the first L-BFGS step after each refresh;
         False takes the full Gauss-Newton step there (problems with residuals only).
+      grow_after_inner_solved: grow the penalty only when the inner problem reached its tolerance (not
+        when max_inner cut it short).
+      acceptable_change, acceptable_iterations: a feasible problem (violation within tolerance) whose f
+        changed by at most acceptable_change (relative) in each of the last acceptable_iterations
+        outer iterations is converged even if the stationarity test is not met (IPOPT's "acceptable"
+        termination, Waechter & Biegler 2006, Sec. 3.9: the multipliers of an ill-conditioned problem
+        settle slower than x). 0 disables it.
     """
 
     tolerance: float = 1e-6
@@ -134,6 +141,9 @@ class SolverOptions:
     precondition_every: int = 50
     cap_first_step: bool = True
     infeasible_above: float = 1e-3
+    grow_after_inner_solved: bool = False
+    acceptable_change: float = 0.0
+    acceptable_iterations: int = 3
 
 
 @dataclasses.dataclass
@@ -281,6 +291,8 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     inner_tolerance = np.full(batch, 1.0)
     identity = jnp.broadcast_to(jnp.eye(size, dtype=x.dtype), (batch, size, size))
     at_cap = np.zeros(batch, dtype=int)  # outer iterations spent infeasible at the penalty cap
+    settled = np.zeros(batch, dtype=int)  # consecutive feasible outer iterations with f settled
+    previous_cost = np.full(batch, np.nan)
     best_violation = np.full(batch, np.inf)
 
     for outer in range(options.max_outer):
@@ -347,6 +359,11 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
         lam_eq = jnp.where(act[:, None], lam_eq_new, lam_eq)
         lam_in = jnp.where(act[:, None], lam_in_new, lam_in)
         grow = active & (measure > 0.25 * previous_violation) & (measure > 10 * options.tolerance)
+        if options.grow_after_inner_solved:
+            # an inner problem cut short by max_inner says nothing about the penalty being too small:
+            # growing it then only worsens the conditioning of the next one (Conn, Gould & Toint,
+            # LANCELOT, 1992: rho grows only after an inner problem solved to its tolerance)
+            grow &= gradient_norm <= inner_tolerance
         rho = jnp.where(jnp.asarray(grow), jnp.minimum(rho * options.penalty_growth, options.penalty_max), rho)
         previous_violation = np.where(active, measure, previous_violation)
         outer_iterations += active
@@ -358,12 +375,19 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
         history.append(row)
         if progress:
             progress(outer, row)
+        cost = np.asarray(f)
+        change = np.abs(cost - previous_cost) / np.maximum(1.0, np.abs(cost))
+        settled = np.where(active & (measure <= options.tolerance) & (change <= options.acceptable_change),
+                           settled + 1, np.where(active, 0, settled))
+        previous_cost = np.where(active, cost, previous_cost)
         for b in range(batch):
             if not active[b]:
                 continue
             if not finite[b]:
                 status[b], active[b] = DIVERGED, False
-            elif measure[b] <= options.tolerance and stationarity[b] <= options.stationarity:
+            elif measure[b] <= options.tolerance and (
+                    stationarity[b] <= options.stationarity
+                    or (options.acceptable_change > 0 and settled[b] >= options.acceptable_iterations)):
                 status[b], active[b] = CONVERGED, False
             elif float(rho[b]) >= options.penalty_max and violation[b] > options.tolerance:
                 at_cap[b] += 1

@@ -580,6 +580,16 @@ START_FAMILIES = (
     StartFamily("slow vault, flexed", stance_knee=0.15, swing_lift=0.7, rate_factor=1.0),
 )
 
+#: Families that land on a flexed stance knee (``impact_knee``), the axis along which the cheapest gaits
+#: of this problem lie: measured on M2 without a power limit (multiple shooting, 16 spans), these three
+#: reached J = 2.49-2.73 where every family of :data:`START_FAMILIES` stopped at 4.3-5.2 (README,
+#: "Transcription and starts"). The study starts from these and the first of START_FAMILIES.
+IMPACT_FAMILIES = (
+    StartFamily("flexed stance, flexed impact", stance_knee=0.25, impact_knee=0.45),
+    StartFamily("straight stance, flexed impact", impact_knee=0.45),
+    StartFamily("high swing, flexed impact", swing_lift=0.9, impact_knee=0.3),
+)
+
 
 def initial_guess(model: GaitModel, settings: GaitSettings, leg_length: float = 0.29,
                   swing_lift: float | None = None, family: StartFamily = START_FAMILIES[0]) -> jax.Array:

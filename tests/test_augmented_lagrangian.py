@@ -1,6 +1,7 @@
 """The augmented-Lagrangian solver finds the known optima of small problems, in batches, and says
 so when a problem is infeasible or diverges."""
 
+import dataclasses
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -88,6 +89,20 @@ def test_a_tiny_violation_left_at_the_penalty_cap_is_stalled_not_infeasible():
     result = al.solve(problem, jnp.zeros((1, 1)), jnp.zeros((1,)), OPTIONS)
     assert result.status == [al.STALLED]
     assert result.violation[0] == pytest.approx(1e-5, rel=0.05)
+
+
+def test_acceptable_termination_needs_feasibility_and_a_settled_cost():
+    # stationarity -1 can never be met: only the acceptable rule can end the solve as converged
+    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum((x - 2.0) ** 2),
+                                    equalities=lambda x, p: jnp.array([x[0] - 1.0]),
+                                    inequalities=lambda x, p: jnp.zeros(0))
+    strict = dataclasses.replace(OPTIONS, stationarity=-1.0, max_outer=12)
+    result = al.solve(problem, jnp.zeros((1, 2)), jnp.zeros((1,)), strict)
+    assert result.status == [al.ITERATION_LIMIT] and result.outer_iterations[0] == 12
+    acceptable = dataclasses.replace(strict, acceptable_change=1e-7, acceptable_iterations=3)
+    result = al.solve(problem, jnp.zeros((1, 2)), jnp.zeros((1,)), acceptable)
+    assert result.status == [al.CONVERGED] and result.outer_iterations[0] < 12
+    np.testing.assert_allclose(result.x[0], [1.0, 2.0], atol=1e-6)
 
 
 def test_nan_is_caught_and_reported_as_diverged():

@@ -220,3 +220,20 @@ def test_a_broken_study_result_is_named(capsys, tmp_path, content, message):
     (tmp_path / "results.json").write_text(content)
     error = _error(capsys, ["humanoid", "--gaits", str(tmp_path), "--out", str(tmp_path / "out")])
     assert message in error and "results.json" in error
+
+
+def test_every_result_file_is_written_through_the_strict_atomic_writers():
+    """The property behind 'no JSON the project writes contains NaN': every writer in the package goes
+    through biped_jax.outputs (strict JSON, atomic). A new direct write would break it."""
+    from pathlib import Path
+
+    import biped_jax
+    direct = ("json.dump(", "json.dumps(", ".write_text(", ".savefig(", "np.savez", "np.save(")
+    offenders = []
+    for path in Path(biped_jax.__file__).parent.glob("*.py"):
+        if path.name in ("outputs.py", "mjcf.py"):  # mjcf writes the model files, not results
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if any(call in line.replace("outputs.write_text(", "") for call in direct):
+                offenders.append(f"{path.name}:{number}: {line.strip()}")
+    assert not offenders, offenders

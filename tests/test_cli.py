@@ -101,3 +101,5 @@ def test_donald_command_writes_its_report(tmp_path):
 def test_reproduce_rejects_bad_settings():
     with pytest.raises(SystemExit):
         cli.main(["reproduce", "--spans", "0"])
+    with pytest.raises(SystemExit):
+        cli.main(["reproduce", "--substeps", "7"])

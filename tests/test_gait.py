@@ -3,6 +3,7 @@ refinement check, the multistart's spread, bad input, short-horizon gaits that c
 values recomputed from the trajectory."""
 
 import dataclasses
+import types
 
 import jax
 import jax.numpy as jnp
@@ -336,3 +337,45 @@ def test_start_family_can_land_on_a_flexed_stance_knee():
         q = np.asarray(gait.reference(x, SETTINGS, np.array([0.0, 1.0]))[0])  # (H1, K1, H2, K2) at 0, t_f
         assert q[1, 1] == pytest.approx(knee, abs=1e-12) and q[0, 3] == pytest.approx(knee, abs=1e-12)
         assert q[0, 1] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_continuation_keeps_the_cheapest_feasible_family_per_model_and_solves_it_at_the_limit():
+    """study.solve_paper_models' bookkeeping, with a stand-in solver (no compilation): per model the
+    cheapest converged family without a power limit is carried to the model's own limit, every family's
+    outcome is listed, and a model with no converged family carries its least violated start."""
+    from biped_jax import study
+
+    class StandIn:
+        settings, leg_length = short_settings(), 0.29
+        options = gait_solver.GAIT_SOLVER_OPTIONS
+
+        def __init__(self):
+            self.calls = []
+
+        def with_options(self, **changes):
+            return self
+
+        def solve(self, names, models, x0=None, progress=None):
+            self.calls.append((np.asarray(x0), [float(m.power_limit) for m in models]))
+            family = len(self.calls) - 1
+            # model 0: family 1 cheapest of the converged; model 1: nothing converges, family 2 least violated
+            table = {0: [(al.CONVERGED, 3.0, 0.0), (al.CONVERGED, 2.0, 0.0), (al.ITERATION_LIMIT, 1.0, 1e-2)],
+                     1: [(al.ITERATION_LIMIT, 3.0, 5e-2), (al.STALLED, 2.0, 3e-2), (al.ITERATION_LIMIT, 1.0, 1e-3)]}
+            out = []
+            for b, name in enumerate(names):
+                status, cost, violation = table[b][family] if family < 3 else (al.CONVERGED, 9.0, 0.0)
+                out.append(types.SimpleNamespace(name=name, status=status, cost=cost, max_violation=violation,
+                                                 x=np.full(x0.shape[1], 10.0 * family + b), starts=[]))
+            return out
+
+    families = gait.IMPACT_FAMILIES
+    rows = study.PAPER_MODELS[1:3]  # M2 (20 W), M3 (25 W)
+    solver = StandIn()
+    solutions, by_family = study.solve_paper_models(solver, families=families, rows=rows)
+    assert [limits for _, limits in solver.calls] == [[study.FREE_POWER_LIMIT] * 2] * 3 + [[20.0, 25.0]]
+    carried = solver.calls[-1][0]
+    np.testing.assert_array_equal(carried[:, 0], [10.0 * 1 + 0, 10.0 * 2 + 1])
+    assert [len(s.starts) for s in solutions] == [3, 3] and len(by_family) == 3
+    assert [row["carried_on"] for row in solutions[0].starts] == [False, True, False]
+    assert [row["family"] for row in solutions[1].starts] == [f.name for f in families]
+    assert all(f.impact_knee > 0 for f in gait.IMPACT_FAMILIES)
