@@ -323,6 +323,9 @@ def _input_folder(text: str) -> Path:
 
 def _out_argument(parser) -> None:
     parser.add_argument("--out", type=_output_folder, default=Path("out"), help="output folder (default: out/)")
+    parser.add_argument("--profile-compile", action="store_true",
+                        help="list every program JAX compiles (or loads from its cache) with its seconds, "
+                             "in OUT/compile_profile.json and a summary at the end")
 
 
 def _space_arguments(parser, when: str = "") -> None:
@@ -395,12 +398,43 @@ def main(argv: list[str] | None = None) -> int:
         return _run(args)
     try:
         with outputs.run_manifest(args.out, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv))):
-            return _run(args)
+            with _user_stream():
+                if not args.profile_compile:
+                    return _run(args)
+                from biped_jax.compile_profile import profile_compiles
+                with profile_compiles() as profile:
+                    status = _run(args)
+                _report_compiles(profile.summary(), args.out)
+                return status
     except KeyboardInterrupt:
         listed = outputs.read_manifest(args.out)
         kept = ", ".join(listed["files"]) if listed and listed["files"] else "nothing"
         console.print(f"interrupted: finished and kept in {args.out}: {kept} (see {args.out / outputs.MANIFEST})")
         return 130
+
+
+@contextlib.contextmanager
+def _user_stream():
+    """XLA's slow-compile alarm filtered out of standard error (:mod:`biped_jax.xla_alarm`), the
+    console writing to the real terminal meanwhile (so the live progress line still shows)."""
+    from biped_jax.xla_alarm import quiet_compile_alarm
+    saved = console.file
+    with quiet_compile_alarm() as stream:
+        if stream is not sys.stderr:
+            console.file = stream
+        try:
+            yield
+        finally:
+            console.file = saved
+
+
+def _report_compiles(summary: dict, out: Path) -> None:
+    outputs.write_json(out / "compile_profile.json", summary)
+    console.print(f"compiled {summary['compilations']} times, {summary['distinct_programs']} distinct programs, "
+                  f"{summary['seconds']:.0f} s ({summary['seconds_compiled']:.0f} s not from the cache); "
+                  f"largest: " + ", ".join(f"{name} {row['seconds']:.0f} s"
+                                           for name, row in list(summary["programs"].items())[:5])
+                  + f" (all in {out / 'compile_profile.json'})")
 
 
 def _run(args) -> int:

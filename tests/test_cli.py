@@ -11,8 +11,17 @@ from biped_jax import cli
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     out = tmp_path_factory.mktemp("out")
-    cli.main(["step", "--out", str(out)])
+    cli.main(["step", "--out", str(out), "--profile-compile"])
     return out, json.loads((out / "results.json").read_text())
+
+
+def test_compile_profile_lists_the_programs_the_command_compiled(results):
+    out, _ = results
+    profile = json.loads((out / "compile_profile.json").read_text())
+    assert profile["distinct_programs"] == len(profile["programs"]) >= 1
+    assert profile["compilations"] == sum(row["compiled"] + row["hit"] for row in profile["programs"].values())
+    assert profile["seconds"] == pytest.approx(sum(row["seconds"] for row in profile["programs"].values()))
+    assert "compile_profile.json" in json.loads((out / "manifest.json").read_text())["files"]
 
 
 def test_step_writes_results_table_and_figure(results):
@@ -103,3 +112,27 @@ def test_reproduce_rejects_bad_settings():
         cli.main(["reproduce", "--spans", "0"])
     with pytest.raises(SystemExit):
         cli.main(["reproduce", "--substeps", "7"])
+
+
+ALARM = ("2025-03-19 07:30:02.045318: E external/xla/xla/service/slow_operation_alarm.cc:73] \n"
+         "********************************\n"
+         "[Compiling module jit_lagrangian] Very slow compile? If you want to file a bug, run with envvar "
+         "XLA_FLAGS=--xla_dump_to=/tmp/foo and attach the results.\n"
+         "********************************\n")
+
+
+def test_the_xla_slow_compile_alarm_is_replaced_by_one_line_and_errors_pass():
+    import subprocess
+    import sys
+    code = ("import os, sys\nfrom biped_jax.xla_alarm import quiet_compile_alarm\n"
+            "with quiet_compile_alarm():\n"
+            f"    os.write(2, {ALARM.encode()!r})\n"
+            "    os.write(2, b'E0000 a real error\\n')\n"
+            f"    os.write(2, {ALARM.encode()!r})\n"
+            "    print('python error line', file=sys.stderr)\n")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    lines = run.stderr.splitlines()
+    assert run.returncode == 0
+    assert not any("Very slow compile" in line or line.startswith("****") for line in lines), lines
+    assert lines.count("E0000 a real error") == 1 and lines.count("python error line") == 1
+    assert sum("a compilation is taking minutes" in line for line in lines) == 2

@@ -1,0 +1,85 @@
+"""Which programs a command compiles, and how long each took: JAX's own compile log, captured.
+
+JAX reports every backend compilation ("Finished XLA compilation of NAME in T sec", logger
+``jax._src.dispatch``) and every hit of the persistent cache ("Persistent compilation cache hit for
+'NAME'", logger ``jax._src.compiler``) at DEBUG level. :func:`profile_compiles` listens to both for the
+duration of a block, without printing them, so a command can list its distinct programs with their
+compile (or cache-load) seconds: the figures the first-result issue asks for.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+import re
+
+_LOGGERS = ("jax._src.dispatch", "jax._src.compiler")
+_FINISHED = re.compile(r"Finished XLA compilation of (?P<name>.+) in (?P<seconds>[0-9.eE+-]+) sec")
+_HIT = re.compile(r"Persistent compilation cache hit for '(?P<name>[^']+)'")
+
+
+def _key(name: str) -> str:
+    """'jit(lagrangian)' and the module name 'jit_lagrangian' name the same program."""
+    return re.sub(r"[^0-9a-zA-Z]+", "_", name).strip("_")
+
+
+@dataclasses.dataclass
+class CompileProfile(logging.Handler):
+    """The compilations seen: ``events``, one dict per backend compilation (name, seconds, cache "hit"
+    when it came from the persistent cache, else "compiled")."""
+
+    events: list = dataclasses.field(default_factory=list)
+
+    def __post_init__(self):
+        logging.Handler.__init__(self, level=logging.DEBUG)
+        self._hits: set[str] = set()
+
+    def __hash__(self):
+        return id(self)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        message = record.getMessage()
+        hit = _HIT.search(message)
+        if hit:
+            self._hits.add(_key(hit["name"]))
+            return
+        done = _FINISHED.search(message)
+        if done:
+            key = _key(done["name"])
+            cached = key in self._hits
+            self._hits.discard(key)
+            self.events.append({"name": done["name"], "seconds": float(done["seconds"]),
+                                "cache": "hit" if cached else "compiled"})
+
+    def summary(self) -> dict:
+        """Per distinct program: how often it was compiled or loaded, and the seconds; and the totals."""
+        programs: dict[str, dict] = {}
+        for event in self.events:
+            row = programs.setdefault(event["name"], {"compiled": 0, "hit": 0, "seconds": 0.0})
+            row[event["cache"]] += 1
+            row["seconds"] += event["seconds"]
+        return {"distinct_programs": len(programs), "compilations": len(self.events),
+                "seconds": sum(e["seconds"] for e in self.events),
+                "seconds_compiled": sum(e["seconds"] for e in self.events if e["cache"] == "compiled"),
+                "programs": dict(sorted(programs.items(), key=lambda kv: -kv[1]["seconds"]))}
+
+
+@contextlib.contextmanager
+def profile_compiles():
+    """Yields a :class:`CompileProfile` that records the block's compilations (nothing is printed)."""
+    profile = CompileProfile()
+    saved = []
+    for name in _LOGGERS:
+        logger = logging.getLogger(name)
+        saved.append((logger, logger.level, logger.propagate))
+        logger.setLevel(logging.DEBUG)
+        logger.propagate = False  # JAX's own DEBUG lines stay out of the user's terminal
+        logger.addHandler(profile)
+    try:
+        yield profile
+    finally:
+        for logger, level, propagate in saved:
+            logger.removeHandler(profile)
+            logger.setLevel(level)
+            logger.propagate = propagate
