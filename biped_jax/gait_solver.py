@@ -136,14 +136,18 @@ class GaitSolver:
 
     ``require_refinement=False`` reports the refinement check without letting it decide the status:
     for the test suite's deliberately coarse grids (4 knot spans), where a gait solved on its grid is
-    what the tests need and the check's figures are still recorded. Every study uses the default.
+    what the tests need and the check's figures are still recorded. ``check_refinement=False`` skips
+    the check altogether (its rollout is then never compiled; ``refinement`` reads ``{"skipped": True}``):
+    for a stage whose results only choose starts, such as the multistart's coarse space. Every reported
+    solution has the check.
     """
 
     def __init__(self, settings: gait.GaitSettings = gait.GaitSettings(),
                  options: al.SolverOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
-                 require_refinement: bool = True):
+                 require_refinement: bool = True, check_refinement: bool = True):
         self.settings, self.options = settings, options
-        self.require_refinement = require_refinement
+        self.require_refinement = require_refinement and check_refinement
+        self.check_refinement = check_refinement
         self.biped = hs.load_planar_biped(mass_class_template)  # designs replace its masses
         self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
         biped, settings_ = self.biped, settings
@@ -182,14 +186,14 @@ class GaitSolver:
         result = al.solve(self.problem, x0, batch, self.options, compiled=self.compiled,
                           progress=progress)
         trajectories = self.simulate(jnp.asarray(result.x), batch)
-        refined = self._simulate_refined(jnp.asarray(result.x), batch)
+        refined = self._simulate_refined(jnp.asarray(result.x), batch) if self.check_refinement else None
         solutions = []
         for b, (name, model) in enumerate(zip(names, models)):
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
             groups = gait.constraint_groups(trajectory, model, self.settings)
             violations = {k: float(v) for k, v in gait.violations(groups).items()}
-            refinement = refinement_record(float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined),
-                                           model, self.refined_settings)
+            refinement = {"skipped": True, "passed": None} if refined is None else refinement_record(
+                float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined), model, self.refined_settings)
             finite = bool(np.all(np.isfinite(result.x[b])) and np.all(np.isfinite(trajectory.u)))
             status = classify(result.status[b], finite, violations, refinement, self.require_refinement)
             solutions.append(GaitSolution(

@@ -144,12 +144,14 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     solver = GaitSolver(settings)
-    coarse = GaitSolver(gait_solver.coarse_settings(settings))
+    # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
+    coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False)
     names = [r.name for r in PAPER_MODELS]
 
     def report(label):
-        return lambda i, row: say(f"{label}: outer iteration {i + 1}, largest scaled violation "
-                                  f"{np.max(row['violation']):.1e}, gradients {int(np.max(row['gradients']))}")
+        return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {solver.options.max_outer}, "
+                                  f"largest scaled violation {np.max(row['violation']):.1e} (done below "
+                                  f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}")
 
     say(f"compiling the gait problems; M1-M4 from {len(gait.START_FAMILIES)} starts each in one batch "
         f"({coarse.settings.spans} knot spans), then the best in {settings.spans} spans")
