@@ -418,14 +418,15 @@ def _user_stream():
     """XLA's slow-compile alarm filtered out of standard error (:mod:`biped_jax.xla_alarm`), the
     console writing to the real terminal meanwhile (so the live progress line still shows)."""
     from biped_jax.xla_alarm import quiet_compile_alarm
-    saved = console.file
     with quiet_compile_alarm() as stream:
-        if stream is not sys.stderr:
-            console.file = stream
+        if stream is sys.stderr:  # nothing filtered (e.g. a test runner captures standard error)
+            yield
+            return
+        console.file = stream
         try:
             yield
         finally:
-            console.file = saved
+            console.file = None  # back to whatever sys.stderr is (rich resolves it at each write)
 
 
 def _report_compiles(summary: dict, out: Path) -> None:
