@@ -184,7 +184,8 @@ def site_position(model, q: jax.Array, site: str) -> jax.Array:
 
 def site_velocity(model, q: jax.Array, qd: jax.Array, site: str) -> tuple[jax.Array, jax.Array]:
     """(position (3,) m, velocity (3,) m/s) of a named site."""
-    q, qd = _check_shape("q", q, (model.nq,)), _check_shape("qd", qd, (model.nv,))
+    # qd is the tangent of q here (the same shape: equal to the rates where nq == nv, as in the planar chain)
+    q, qd = _check_shape("q", q, (model.nq,)), _check_shape("qd", qd, (model.nq,))
     return jax.jvp(lambda q_: site_position(model, q_, site), (q,), (qd,))
 
 
