@@ -170,13 +170,13 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, settings, bisections: int) -> dict:
+def reproduce(out: Path, settings, bisections: int, resume: bool = False) -> dict:
     """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
     from biped_jax import study
 
     started = time.perf_counter()
     with live_progress(("M1-M4", "20 W:", "restart:")) as progress:
-        results = study.run_study(out, settings, bisections, progress)
+        results = study.run_study(out, settings, bisections, progress, resume=resume)
     for record in results["models"]:
         check = record["refinement"]
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -349,6 +349,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--bisections", type=_integer("bisections", 1, 30), default=6,
                      help="bisection steps for the smallest feasible power limit, 1-30 (default 6)")
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
+    run.add_argument("--resume", action="store_true",
+                     help="continue an interrupted study in --out from its finished stages (OUT/stages)")
     bench = commands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
     _out_argument(bench)
     _space_arguments(bench)
@@ -397,7 +399,8 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "out"):
         return _run(args)
     try:
-        with outputs.run_manifest(args.out, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv))):
+        with outputs.run_manifest(args.out, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv)),
+                                  resume=getattr(args, "resume", False)):
             with _user_stream():
                 if not args.profile_compile:
                     return _run(args)
@@ -409,7 +412,11 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         listed = outputs.read_manifest(args.out)
         kept = ", ".join(listed["files"]) if listed and listed["files"] else "nothing"
-        console.print(f"interrupted: finished and kept in {args.out}: {kept} (see {args.out / outputs.MANIFEST})")
+        hint = ""
+        if listed and any(name.startswith("stages/") for name in listed["files"]):
+            hint = "; the same command with --resume continues from the finished stages"
+        console.print(f"interrupted: finished and kept in {args.out}: {kept} (see {args.out / outputs.MANIFEST})"
+                      + hint)
         return 130
 
 
@@ -506,7 +513,7 @@ def _run(args) -> int:
     if args.command == "codesign":
         codesign(args.out, settings, args.iterations)
         return 0
-    reproduce(args.out, settings, args.bisections)
+    reproduce(args.out, settings, args.bisections, args.resume)
     return 0
 
 

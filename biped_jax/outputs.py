@@ -95,6 +95,13 @@ def write_text(path: Path, text: str) -> Path:
     return Path(path)
 
 
+def write_bytes(path: Path, data: bytes) -> Path:
+    """Writes ``data`` to ``path`` atomically."""
+    with _atomic(path, ".tmp") as temporary:
+        temporary.write_bytes(data)
+    return Path(path)
+
+
 def write_json(path: Path, record: Any) -> Path:
     """Writes ``record`` as strict JSON (see :func:`json_text`) atomically."""
     return write_text(path, json_text(record))
@@ -186,16 +193,21 @@ def _set_aside_previous(folder: Path) -> None:
 
 
 @contextlib.contextmanager
-def run_manifest(folder: Path, command: list[str] | None = None):
+def run_manifest(folder: Path, command: list[str] | None = None, resume: bool = False):
     """Keeps ``folder/manifest.json`` for the block: state ``running`` with no files at the start,
     each file written through this module listed as it lands, and at the end ``completed``,
     ``interrupted`` (Ctrl-C) or ``failed`` (with the error), and the end time. The files an earlier
-    run's manifest listed are moved to ``folder/previous/`` first. The exception, if any, propagates."""
+    run's manifest listed are moved to ``folder/previous/`` first, unless ``resume`` (the run continues
+    from them; the manifest notes the run it resumed). The exception, if any, propagates."""
     global _current
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    _set_aside_previous(folder)
+    earlier = read_manifest(folder) if resume else None
+    if not resume:
+        _set_aside_previous(folder)
     run = _Run(folder, list(sys.argv) if command is None else command)
+    if earlier:
+        run.record["resumed_from"] = {k: earlier.get(k) for k in ("started", "state", "files")}
     previous, _current = _current, run
     run.write()
     try:

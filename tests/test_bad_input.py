@@ -237,3 +237,40 @@ def test_every_result_file_is_written_through_the_strict_atomic_writers():
             if any(call in line.replace("outputs.write_text(", "") for call in direct):
                 offenders.append(f"{path.name}:{number}: {line.strip()}")
     assert not offenders, offenders
+
+
+def test_a_finished_stage_is_kept_and_resumed_only_for_the_same_settings(tmp_path):
+    from biped_jax import study
+    calls = []
+
+    def compute(value):
+        return lambda: calls.append(value) or {"x": np.arange(3.0) * value}
+    key = {"settings": {"spans": 4}}
+    first = study.stage(tmp_path, "paper_models", key, compute(1.0), resume=False)
+    assert calls == [1.0] and (tmp_path / "stages" / "paper_models.pkl").is_file()
+    again = study.stage(tmp_path, "paper_models", key, compute(2.0), resume=True)
+    assert calls == [1.0]  # taken from the file, not computed
+    np.testing.assert_array_equal(again["x"], first["x"])
+    other = study.stage(tmp_path, "paper_models", {"settings": {"spans": 8}}, compute(3.0), resume=True)
+    assert calls == [1.0, 3.0] and other["x"][1] == 3.0  # other settings: computed again
+    study.stage(tmp_path, "paper_models", key, compute(4.0), resume=False)
+    assert calls == [1.0, 3.0, 4.0]  # without --resume a stage is always computed
+    (tmp_path / "stages" / "paper_models.pkl").write_bytes(b"truncated")
+    assert study.stage(tmp_path, "paper_models", key, compute(5.0), resume=True)["x"][1] == 5.0
+
+
+def test_resume_keeps_the_earlier_runs_files_and_says_so(tmp_path):
+    with pytest.raises(KeyboardInterrupt):
+        with outputs.run_manifest(tmp_path, ["first"]):
+            outputs.write_bytes(tmp_path / "stages" / "paper_models.pkl", b"stage")
+            raise KeyboardInterrupt
+    with outputs.run_manifest(tmp_path, ["second", "--resume"], resume=True):
+        pass
+    manifest = outputs.read_manifest(tmp_path)
+    assert (tmp_path / "stages" / "paper_models.pkl").is_file() and not (tmp_path / outputs.PREVIOUS).exists()
+    assert manifest["resumed_from"]["state"] == "interrupted"
+    assert manifest["resumed_from"]["files"] == ["stages/paper_models.pkl"]
+
+
+def test_resume_is_a_reproduce_option_checked_before_any_work(capsys):
+    assert "--resume" in _error(capsys, ["kelly", "--resume"])  # only the study has stages
