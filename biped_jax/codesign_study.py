@@ -10,6 +10,8 @@ program (and one gradient program) serves them all.
 
 from __future__ import annotations
 
+import dataclasses
+
 import math
 from pathlib import Path
 from typing import Callable
@@ -160,8 +162,10 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
 
 
 def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dynamics="chain"), iterations: int = 5,
-                 progress: Callable[[str], None] | None = None) -> dict:
-    """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png."""
+                 progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
+    """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png.
+    Each finished study is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes
+    those written with the same settings instead of solving them again."""
     from biped_jax import codesign_plots
 
     say = progress or (lambda message: None)
@@ -170,17 +174,19 @@ def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dyna
     results = {"settings": {"steps": settings.steps, "degree": settings.degree, "batch": BATCH,
                             "torque_bound_Nm": settings.torque_bound, "dynamics": settings.dynamics}}
     save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731
+    key = {"settings": dataclasses.asdict(settings), "iterations": iterations, "options": STUDY_OPTIONS}
+    kept = lambda name, compute: outputs.stage(out, f"codesign_{name}", key, compute, resume, say)  # noqa: E731
     say("compiling the gait problem (batch of 16); study (c) from heuristic starts")
-    results["pareto"], x_start = pareto(solver, say)
+    results["pareto"], x_start = kept("pareto", lambda: pareto(solver, say))
     save()
     codesign_plots.plot_pareto(results["pareto"], out / "codesign_pareto.png")
-    results["mass_scaling"] = mass_scaling(solver, say)
+    results["mass_scaling"] = kept("mass_scaling", lambda: mass_scaling(solver, say))
     save()
     codesign_plots.plot_mass_scaling(results["mass_scaling"], out / "codesign_mass_scaling.png")
-    results["speed_limits"] = speed_limits(solver, x_start, say)
+    results["speed_limits"] = kept("speed_limits", lambda: speed_limits(solver, x_start, say))
     save()
     codesign_plots.plot_speed_limits(results["speed_limits"], out / "codesign_speed.png")
-    results["co_optimisation"] = co_optimisation(solver, x_start, say, iterations)
+    results["co_optimisation"] = kept("co_optimisation", lambda: co_optimisation(solver, x_start, say, iterations))
     save()
     codesign_plots.plot_optimisation(results["co_optimisation"], out / "codesign_optimisation.png")
     return results

@@ -25,7 +25,7 @@ import sys
 import tempfile
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 MANIFEST = "manifest.json"
 #: Subfolder that receives an earlier run's files when a new run starts in the same folder.
@@ -121,6 +121,34 @@ def save_npz(path: Path, compressed: bool = False, **arrays) -> Path:
     with _atomic(Path(path), ".npz") as temporary:
         (np.savez_compressed if compressed else np.savez)(temporary, **arrays)
     return Path(path)
+
+
+#: Where a study keeps its finished stages (for ``--resume``), inside the output folder.
+STAGES = "stages"
+
+
+def stage(out: Path, name: str, key: dict, compute: Callable[[], object], resume: bool,
+          say: Callable[[str], None] = lambda message: None):
+    """The result of one stage of a long study: loaded from ``out/stages/name.pkl`` when ``resume`` is
+    set and that file was written by a run with the same ``key`` (the settings that decide the
+    result), else computed and saved there (atomically) before it is returned.
+
+    The files are Python pickles written by this package for this folder: load only your own."""
+    import pickle
+    path = Path(out) / STAGES / f"{name}.pkl"
+    if resume and path.is_file():
+        try:
+            saved = pickle.loads(path.read_bytes())
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as error:
+            say(f"{path}: unreadable ({type(error).__name__}), computing the stage again")
+        else:
+            if saved.get("key") == key:
+                say(f"resumed: {name} from {path}")
+                return saved["value"]
+            say(f"{path} was written with other settings, computing the stage again")
+    value = compute()
+    write_bytes(path, pickle.dumps({"key": key, "value": value}))
+    return value
 
 
 def _versions() -> dict:

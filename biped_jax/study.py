@@ -133,34 +133,6 @@ def _iterations(say, label: str, options: al.SolverOptions):
                               f"{np.max(row['violation']):.1e}, J = " + ", ".join(f"{c:.3f}" for c in row["cost"]))
 
 
-#: Where a study keeps its finished stages (for ``--resume``), inside the output folder.
-STAGES = "stages"
-
-
-def stage(out: Path, name: str, key: dict, compute: Callable[[], object], resume: bool,
-          say: Callable[[str], None] = lambda message: None):
-    """The result of one stage of a long study: loaded from ``out/stages/name.pkl`` when ``resume`` is
-    set and that file was written by a run with the same ``key`` (the settings that decide the
-    result), else computed and saved there (atomically) before it is returned.
-
-    The files are Python pickles written by this package for this folder: load only your own."""
-    import pickle
-    path = Path(out) / STAGES / f"{name}.pkl"
-    if resume and path.is_file():
-        try:
-            saved = pickle.loads(path.read_bytes())
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError) as error:
-            say(f"{path}: unreadable ({type(error).__name__}), computing the stage again")
-        else:
-            if saved.get("key") == key:
-                say(f"resumed: {name} from {path}")
-                return saved["value"]
-            say(f"{path} was written with other settings, computing the stage again")
-    value = compute()
-    outputs.write_bytes(path, pickle.dumps({"key": key, "value": value}))
-    return value
-
-
 def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bisections: int = 6,
               progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
@@ -168,7 +140,7 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
     and the minimal power limits; writes
     results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
-    stage is kept in ``out/stages`` (:func:`stage`); ``resume`` takes the stages found there for these
+    stage is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes the stages found there for these
     settings instead of solving them again."""
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
@@ -185,11 +157,11 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
 
     say(f"compiling the gait problems; M1-M4 from {len(gait.START_FAMILIES)} starts each in one batch "
         f"({coarse.settings.spans} knot spans), then the best in {settings.spans} spans")
-    solutions = stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
+    solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
         solver, names, _models(PAPER_MODELS), coarse=coarse,
         progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row)), resume, say)
     say("M1-M4 at M_W = 20 W")
-    at_20 = stage(out, "at_20W", key, lambda: solver.solve(
+    at_20 = outputs.stage(out, "at_20W", key, lambda: solver.solve(
         names, _models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),
         progress=report("20 W")), resume, say)
     # A gait feasible at 20 W is feasible at every looser limit: where it costs less than the solution
@@ -199,12 +171,12 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
     if better:
         say("restarting " + ", ".join(names[b] for b in better) + " from their cheaper 20 W gaits")
         starts = jnp.stack([jnp.asarray(at_20[b].x if b in better else s.x) for b, s in enumerate(solutions)])
-        restarted = stage(out, "restart", key, lambda: solver.solve(
+        restarted = outputs.stage(out, "restart", key, lambda: solver.solve(
             names, _models(PAPER_MODELS), x0=starts, progress=report("restart")), resume, say)
         solutions = [r if (b in better and r.status == al.CONVERGED and r.cost < s.cost) else s
                      for b, (s, r) in enumerate(zip(solutions, restarted))]
     say("smallest feasible power limit per model")
-    minimal = stage(out, "minimal_power_limits", key,
+    minimal = outputs.stage(out, "minimal_power_limits", key,
                     lambda: minimal_power_limits(solver, solutions, bisections, progress=say), resume, say)
 
     records = []

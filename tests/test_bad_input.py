@@ -240,23 +240,22 @@ def test_every_result_file_is_written_through_the_strict_atomic_writers():
 
 
 def test_a_finished_stage_is_kept_and_resumed_only_for_the_same_settings(tmp_path):
-    from biped_jax import study
     calls = []
 
     def compute(value):
         return lambda: calls.append(value) or {"x": np.arange(3.0) * value}
     key = {"settings": {"spans": 4}}
-    first = study.stage(tmp_path, "paper_models", key, compute(1.0), resume=False)
+    first = outputs.stage(tmp_path, "paper_models", key, compute(1.0), resume=False)
     assert calls == [1.0] and (tmp_path / "stages" / "paper_models.pkl").is_file()
-    again = study.stage(tmp_path, "paper_models", key, compute(2.0), resume=True)
+    again = outputs.stage(tmp_path, "paper_models", key, compute(2.0), resume=True)
     assert calls == [1.0]  # taken from the file, not computed
     np.testing.assert_array_equal(again["x"], first["x"])
-    other = study.stage(tmp_path, "paper_models", {"settings": {"spans": 8}}, compute(3.0), resume=True)
+    other = outputs.stage(tmp_path, "paper_models", {"settings": {"spans": 8}}, compute(3.0), resume=True)
     assert calls == [1.0, 3.0] and other["x"][1] == 3.0  # other settings: computed again
-    study.stage(tmp_path, "paper_models", key, compute(4.0), resume=False)
+    outputs.stage(tmp_path, "paper_models", key, compute(4.0), resume=False)
     assert calls == [1.0, 3.0, 4.0]  # without --resume a stage is always computed
     (tmp_path / "stages" / "paper_models.pkl").write_bytes(b"truncated")
-    assert study.stage(tmp_path, "paper_models", key, compute(5.0), resume=True)["x"][1] == 5.0
+    assert outputs.stage(tmp_path, "paper_models", key, compute(5.0), resume=True)["x"][1] == 5.0
 
 
 def test_resume_keeps_the_earlier_runs_files_and_says_so(tmp_path):
