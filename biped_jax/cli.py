@@ -205,14 +205,16 @@ def kelly(out: Path, spans: int, degree: int, substeps: int) -> dict:
     return record
 
 
-def donald_walk(out: Path, steps: int, faster: bool = False) -> dict:
+def donald_walk(out: Path, steps: int, faster: bool = False, resume: bool = False) -> dict:
     """DONALD's walk (or the optimised one); see :mod:`biped_jax.donald_study`."""
     from biped_jax import donald_study
 
     started = time.perf_counter()
     with live_progress() as progress:
-        run = donald_study.run_faster if faster else donald_study.run_donald
-        report = run(out, steps, progress)
+        if faster:
+            report = donald_study.run_faster(out, steps, progress, resume=resume)
+        else:
+            report = donald_study.run_donald(out, steps, progress)
     if faster:
         result = report["optimisation"]
         console.print(f"optimiser: {result['status']}, speed over steps 2-3 {result['default_speed_mps']:.4f} -> "
@@ -359,6 +361,8 @@ def _parser() -> argparse.ArgumentParser:
     walker.add_argument("--steps", type=_integer("steps", 1, 1000), default=8, help="steps to walk, 1-1000 (default 8)")
     walker.add_argument("--faster", action="store_true",
                         help="first optimise the gait for speed (tens of minutes), then walk the optimum")
+    walker.add_argument("--resume", action="store_true",
+                        help="with --faster: continue from the finished optimisation in --out (OUT/stages)")
     replay = commands.add_parser("humanoid", help="the optimal sagittal gait replayed on the 16-DoF humanoid "
                                  "under contact in MJX (figures, JSON; it walks slower than the gait, see "
                                  "README)")
@@ -398,6 +402,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """The command line; returns the exit status (130 after Ctrl-C, with one line saying so)."""
     args = _parser().parse_args(argv)
+    if args.command == "donald" and args.resume and not args.faster:
+        args.parser.error("--resume continues the --faster optimisation; give both or neither")
     if not hasattr(args, "out"):
         return _run(args)
     try:
@@ -504,7 +510,7 @@ def _run(args) -> int:
         kelly(args.out, args.spans, args.degree, args.substeps)
         return 0
     if args.command == "donald":
-        donald_walk(args.out, args.steps, args.faster)
+        donald_walk(args.out, args.steps, args.faster, args.resume)
         return 0
     if args.command == "humanoid":
         try:

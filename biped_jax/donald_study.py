@@ -151,21 +151,26 @@ def verify_candidates(gaits: list[dict], steps: int, say: Callable[[str], None])
     return records
 
 
-def run_faster(out: Path, steps: int = 8, progress: Callable[[str], None] | None = None) -> dict:
+def run_faster(out: Path, steps: int = 8, progress: Callable[[str], None] | None = None,
+               resume: bool = False) -> dict:
     """Optimises the gait for speed (``biped_jax.donald_speed``), walks the default gait and every outer
     iterate with MJX's full contact solver (:func:`verify_candidates`), and walks the fastest verified
     one as :func:`run_donald` does (files named donald_faster*). donald_faster.json holds the walk, the
     optimisation and every candidate; the default gait is a candidate, so the result is never a gait
-    that failed verification."""
+    that failed verification. The optimisation and the verification are kept in ``out/stages``;
+    ``resume`` takes them back (:func:`biped_jax.outputs.stage`)."""
     from biped_jax import donald_speed
     say = progress or (lambda message: None)
     say("optimising DONALD's gait for speed (single shooting through MJX contact, augmented Lagrangian)")
-    result = donald_speed.optimise(progress=lambda i, row: say(
-        f"outer iteration {i + 1}: speed {-0.01 * float(row['cost'][0]):.4f} m/s, scaled violation "
-        f"{float(row['violation'][0]):.1e}, gradients {int(row['gradients'][0])}"))
+    key = {"steps": steps}
+    result = outputs.stage(out, "donald_speed_optimisation", key, lambda: donald_speed.optimise(
+        progress=lambda i, row: say(
+            f"outer iteration {i + 1}: speed {-0.01 * float(row['cost'][0]):.4f} m/s, scaled violation "
+            f"{float(row['violation'][0]):.1e}, gradients {int(row['gradients'][0])}")), resume, say)
     default = {name: float(getattr(donald.DEFAULT_GAIT, name)) for name in donald_speed.PARAMETERS}
     say(f"verifying the default gait and {len(result['iterates'])} iterates with the full contact solver")
-    candidates = verify_candidates([default] + [row["gait"] for row in result["iterates"]], steps, say)
+    candidates = outputs.stage(out, "donald_speed_candidates", key, lambda: verify_candidates(
+        [default] + [row["gait"] for row in result["iterates"]], steps, say), resume, say)
     verified = [c for c in candidates if c["verified"]]
     best = max(verified, key=lambda c: c["speed_mps"]) if verified else candidates[0]
     gait = dataclasses.replace(donald.DEFAULT_GAIT, **{k: jnp.asarray(v) for k, v in best["gait"].items()})

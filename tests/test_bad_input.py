@@ -272,4 +272,5 @@ def test_resume_keeps_the_earlier_runs_files_and_says_so(tmp_path):
 
 
 def test_resume_is_a_reproduce_option_checked_before_any_work(capsys):
-    assert "--resume" in _error(capsys, ["kelly", "--resume"])  # only the study has stages
+    assert "--resume" in _error(capsys, ["kelly", "--resume"])  # only the long studies have stages
+    assert "give both or neither" in _error(capsys, ["donald", "--resume"])
