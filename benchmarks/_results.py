@@ -1,12 +1,13 @@
 """Saving benchmark results with the machine and library versions they were measured on."""
 
-import json
 import platform
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
+
+from biped_jax import outputs
 
 
 def median_seconds(function, args, repeats: int) -> float:
@@ -21,15 +22,15 @@ def median_seconds(function, args, repeats: int) -> float:
 
 
 def save_results(benchmark: str, settings: dict, rows: list, folder: Path) -> Path:
-    """Writes ``{folder}/{benchmark}_{platform}.json`` and returns its path."""
+    """Writes ``{folder}/{benchmark}_{platform}.json`` (strict JSON: NaN and infinities as null) and
+    returns its path."""
     import mujoco
     device = jax.devices()[0]
     result = {"benchmark": benchmark, "date": time.strftime("%Y-%m-%d"), "device": str(device),
               "device_kind": getattr(device, "device_kind", "cpu"), "platform": platform.platform(),
               "processor": platform.processor(), "jax": jax.__version__, "mujoco": mujoco.__version__,
               **settings, "rows": rows}
-    folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{benchmark}_{device.platform}.json"
-    path.write_text(json.dumps(result, indent=2))
+    outputs.write_json(path, result)  # strict JSON (a missing figure is null), written atomically
     print(f"device {device} ({result['device_kind']}); saved {path}")
     return path

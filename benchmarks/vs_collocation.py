@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import time
 from pathlib import Path
 
@@ -92,7 +91,7 @@ def main():
     started = time.perf_counter()
     ours = ours_once()
     ours_time = time.perf_counter() - started
-    ours_warm = math.nan
+    ours_warm = None  # measured only with --warm
     if args.warm:
         started = time.perf_counter()
         ours_once()
@@ -114,7 +113,8 @@ def main():
               f"{solution.refinement['cost']:.4f}, worst {worst[0]} {worst[1]:.1e})  peer J = {peer['cost']:8.4f} "
               f"({peer['status']}; {2 * args.segments} segments {peer['cost_finer_mesh']:.4f})  gap {gap:+6.2f} %",
               flush=True)
-    print(f"ours: {len(cases)} cases, {ours_time:.0f} s cold (compile included), {ours_warm:.0f} s warm")
+    warm = "not measured (--warm)" if ours_warm is None else f"{ours_warm:.0f} s warm"
+    print(f"ours: {len(cases)} cases, {ours_time:.0f} s cold (compile included), {warm}")
     save_results(args.name, {"segments": args.segments, "spans": args.spans, "substeps": args.substeps},
                  rows, args.out)
 

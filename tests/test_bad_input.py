@@ -278,3 +278,16 @@ def test_resume_keeps_the_earlier_runs_files_and_says_so(tmp_path):
 def test_resume_is_a_reproduce_option_checked_before_any_work(capsys):
     assert "--resume" in _error(capsys, ["kelly", "--resume"])  # only the long studies have stages
     assert "give both or neither" in _error(capsys, ["donald", "--resume"])
+
+
+def test_the_committed_benchmark_results_are_strict_json():
+    """Every JSON under benchmarks/results parses without NaN or Infinity (benchmarks save through
+    benchmarks/_results.py, which writes with biped_jax.outputs)."""
+    folder = Path(__file__).resolve().parent.parent / "benchmarks" / "results"
+
+    def refuse(constant):
+        raise ValueError(f"non-JSON constant {constant}")
+    files = sorted(folder.glob("*.json"))
+    assert files
+    for path in files:
+        json.loads(path.read_text(), parse_constant=refuse)  # raises, naming the constant
