@@ -20,19 +20,19 @@ def integer_in(name: str, value, low: int, high: int) -> int:
     return int(value)
 
 
-def number_in(name: str, value, low: float, high: float, unit: str, include_low: bool = False) -> float:
-    """``value`` if it is a finite real number in (low, high] (or [low, high] with ``include_low``)."""
+def number_in(name: str, value, low: float, high: float, unit: str) -> float:
+    """``value`` if it is a finite real number in (low, high]."""
     real = not isinstance(value, bool) and isinstance(value, numbers.Real)
-    inside = real and math.isfinite(value) and (low <= value if include_low else low < value) and value <= high
-    if not inside:
-        bracket = "[" if include_low else "("
-        raise ValueError(f"{name} must be a number in {bracket}{low:g}, {high:g}] {unit}, got {value!r}")
+    if not (real and math.isfinite(value) and low < value <= high):
+        raise ValueError(f"{name} must be a number in ({low:g}, {high:g}] {unit}, got {value!r}")
     return float(value)
 
 
-def positive(name: str, value, unit: str) -> float:
-    """``value`` if it is a finite number > 0."""
-    return number_in(name, value, 0.0, math.inf, unit)
+def concrete(*trees) -> bool:
+    """True when no leaf of ``trees`` is a JAX tracer: the values exist and can be checked (inside
+    ``jit``, ``vmap`` or ``grad`` they do not, and the functions that accept both check only then)."""
+    import jax  # here, not at the top: the command line imports this module before JAX
+    return not any(isinstance(leaf, jax.core.Tracer) for tree in trees for leaf in jax.tree.leaves(tree))
 
 
 def gait_space(spans: int, degree: int, substeps: int, prefix: str = "") -> None:

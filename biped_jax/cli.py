@@ -529,16 +529,14 @@ def load_replay(path: Path) -> dict:
     """``t`` (T,) and ``qpos`` (T, nq) from a replay ``.npz``; ValueError naming the file and the fault."""
     if not path.is_file():
         raise ValueError(f"--replay {path}: " + ("is not a file" if path.exists() else "does not exist"))
-    import zipfile
-    if not zipfile.is_zipfile(path):
-        raise ValueError(f"--replay {path}: not a readable .npz file (not a zip archive)")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: np.asarray(data[key], dtype=float) for key in ("t", "qpos")}
-    except KeyError as error:
-        raise ValueError(f"--replay {path}: no array {error} (needs t and qpos)") from None
-    except (OSError, ValueError) as error:
-        raise ValueError(f"--replay {path}: not a readable .npz file ({error})") from None
+        stored = outputs.read_npz(path)
+    except ValueError as error:
+        raise ValueError(f"--replay {path}: {error}") from None
+    missing = [key for key in ("t", "qpos") if key not in stored]
+    if missing:
+        raise ValueError(f"--replay {path}: no array {', '.join(missing)} (needs t and qpos)")
+    arrays = {key: np.asarray(stored[key], dtype=float) for key in ("t", "qpos")}
     if arrays["t"].ndim != 1 or arrays["qpos"].ndim != 2 or len(arrays["t"]) != len(arrays["qpos"]) \
             or not len(arrays["t"]):
         raise ValueError(f"--replay {path}: needs t (T,) and qpos (T, nq) with T > 0, got shapes "

@@ -35,6 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import augmented_lagrangian as al
+from biped_jax import checks
 from biped_jax import drives as drive_model
 from biped_jax import gait
 from biped_jax import hybrid_step as hs
@@ -82,18 +83,13 @@ def reflected_inertia(design: DriveDesign) -> jax.Array:
     return design.ratio**2 * (design.rotor_inertia + design.gear_inertia)
 
 
-def _concrete(*trees) -> bool:
-    """True outside a trace (the values can be checked)."""
-    return not any(isinstance(leaf, jax.core.Tracer) for tree in trees for leaf in jax.tree.leaves(tree))
-
-
 def robot_design(design: DriveDesign) -> Design:
     """The MJX model's design arrays: structure masses, armature N^2 J, drive masses at the joints.
     A concrete design is checked (ValueError naming a non-positive or non-finite mass)."""
     result = Design(link_mass=design.structure_mass, joint_armature=reflected_inertia(design),
                     joint_damping=jnp.zeros_like(design.ratio),
                     drive_mass=design.motor_mass + design.gear_mass)
-    if _concrete(design):
+    if checks.concrete(design):
         check_design(result, hs.planar_layouts()[0])
     return result
 
@@ -109,7 +105,7 @@ def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait
     """The gait problem of a design (traceable: ``speed`` etc. may be arrays). The geometry is that of
     the paper's biped (planar-step.md); masses and drives come from ``design``. Concrete values are
     checked (:func:`biped_jax.gait.check_problem`)."""
-    if _concrete(speed, power_limit, step_length):
+    if checks.concrete(speed, power_limit, step_length):
         gait.check_problem(speed, power_limit, step_length)
     return gait.GaitModel(design=robot_design(design), speed=jnp.asarray(speed, float),
                           step_length=jnp.asarray(step_length, float),

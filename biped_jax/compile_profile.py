@@ -10,7 +10,6 @@ compile (or cache-load) seconds: the figures the first-result issue asks for.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import logging
 import re
 
@@ -24,19 +23,14 @@ def _key(name: str) -> str:
     return re.sub(r"[^0-9a-zA-Z]+", "_", name).strip("_")
 
 
-@dataclasses.dataclass
 class CompileProfile(logging.Handler):
     """The compilations seen: ``events``, one dict per backend compilation (name, seconds, cache "hit"
     when it came from the persistent cache, else "compiled")."""
 
-    events: list = dataclasses.field(default_factory=list)
-
-    def __post_init__(self):
-        logging.Handler.__init__(self, level=logging.DEBUG)
-        self._hits: set[str] = set()
-
-    def __hash__(self):
-        return id(self)
+    def __init__(self):
+        super().__init__(level=logging.DEBUG)
+        self.events: list[dict] = []
+        self._hits: set[str] = set()  # programs whose cache hit was logged, awaiting their "Finished" line
 
     def emit(self, record: logging.LogRecord) -> None:
         message = record.getMessage()

@@ -197,16 +197,10 @@ def load_workspaces(path) -> dict[str, tuple[JointWorkspace, dict]]:
 
     Raises ValueError naming the file and the fault for anything else: not an ``.npz``, no gait in it,
     a gait with missing arrays, inconsistent shapes, or NaN or infinite samples."""
-    import zipfile
-    fault = None if zipfile.is_zipfile(path) else "not a zip archive"
-    if fault is None:
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                arrays = {key: data[key] for key in data.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-            fault = str(error)
-    if fault is not None:
-        raise ValueError(f"{path}: not a gait file from `biped-jax reproduce` (not a readable .npz: {fault})")
+    try:
+        arrays = outputs.read_npz(path)
+    except ValueError as error:
+        raise ValueError(f"{path}: not a gait file from `biped-jax reproduce` ({error})") from None
     names = [key[:-5] for key in arrays if key.endswith("_meta")]
     if not names:
         raise ValueError(f"{path}: no gait in it (expected NAME_meta, NAME_t, NAME_speed, NAME_torque arrays "

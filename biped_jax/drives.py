@@ -21,6 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax import checks
+
 RPM = 2 * math.pi / 60  # rad/s per rpm
 MNM = 1e-3  # N m per mN m
 GCM2 = 1e-7  # kg m^2 per g cm^2
@@ -128,7 +130,7 @@ def check_ratio(ratio: float) -> float:
 def _check_concrete(name: str, value, unit: str, high: float = math.inf) -> None:
     """Raises ValueError naming ``value`` unless every element is finite and in (0, high]; values
     inside a trace pass unchecked (the drive functions are differentiated and vmapped)."""
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(value)):
+    if not checks.concrete(value):
         return
     values = np.asarray(value, dtype=float)
     if not np.all(np.isfinite(values) & (values > 0) & (values <= high)):

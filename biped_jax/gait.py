@@ -178,7 +178,7 @@ def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> 
                               ("step_length", step_length, "m")):
         values = np.asarray(value, dtype=float)
         if not np.all(np.isfinite(values) & (values > 0)):
-            raise ValueError(f"{name} must be positive and finite ({unit}), got {values.tolist()}")
+            raise ValueError(f"{name} must be positive, got {values.tolist()} ({unit}; finite)")
     reach = 2 * PLANAR_SPECS[mass_class].leg_length
     if np.any(np.asarray(step_length) >= reach):
         raise ValueError(f"step_length {np.asarray(step_length).tolist()} m is beyond the legs' reach "
@@ -191,11 +191,10 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
     naming a non-positive speed, limit or length, or a step beyond the legs' reach."""
     for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
                               ("step_length", step_length, "m")):
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)) \
-                or not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be positive, got {value!r} ({unit}; finite)")
-    design = hs.planar_design(mass_class)
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+            raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
     check_problem(speed, power_limit, step_length, mass_class)
+    design = hs.planar_design(mass_class)
     return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),
                      power_limit=jnp.asarray(float(power_limit)),

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax import robots
+from biped_jax import checks, robots
 from biped_jax.design import (
     PLANAR_ACTUATED,
     PLANAR_LINKS,
@@ -143,7 +143,7 @@ def with_design(biped: PlanarBiped, design: Design) -> PlanarBiped:
     is checked first (:func:`~biped_jax.design.check_design`: ValueError naming a non-positive or
     non-finite mass, a negative armature or damping, a wrong shape)."""
     pinned_layout, floating_layout = planar_layouts()
-    if not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(design)):
+    if checks.concrete(design):
         check_design(design, pinned_layout)
     return PlanarBiped(pinned=apply_design(biped.pinned, pinned_layout, design),
                        floating=apply_design(biped.floating, floating_layout, design))
@@ -152,7 +152,7 @@ def with_design(biped: PlanarBiped, design: Design) -> PlanarBiped:
 def with_timestep(model, timestep):
     """``model`` (an ``mjx.Model``) integrating with ``timestep`` s; traceable. A concrete timestep
     must be a finite number > 0 (ValueError naming it)."""
-    if not isinstance(timestep, jax.core.Tracer):
+    if checks.concrete(timestep):
         value = np.asarray(timestep)
         if value.shape or not np.isfinite(value) or not value > 0:
             raise ValueError(f"timestep must be a finite number > 0 s, got {timestep!r}")

@@ -123,6 +123,21 @@ def save_npz(path: Path, compressed: bool = False, **arrays) -> Path:
     return Path(path)
 
 
+def read_npz(path: Path) -> dict:
+    """Every array of an ``.npz`` file (no pickled objects); ValueError saying why the file cannot be
+    read (the caller names the file and what it was for)."""
+    import zipfile
+
+    import numpy as np
+    if not zipfile.is_zipfile(path):  # np.load would call a text file "pickled data"
+        raise ValueError("not a readable .npz file (not a zip archive)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {key: data[key] for key in data.files}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
+        raise ValueError(f"not a readable .npz file ({error})") from None
+
+
 #: Where a study keeps its finished stages (for ``--resume``), inside the output folder.
 STAGES = "stages"
 
