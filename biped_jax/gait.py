@@ -193,8 +193,8 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
                               ("step_length", step_length, "m")):
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
             raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
+    design = hs.planar_design(mass_class)  # first: it names an unknown mass class
     check_problem(speed, power_limit, step_length, mass_class)
-    design = hs.planar_design(mass_class)
     return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),
                      power_limit=jnp.asarray(float(power_limit)),
