@@ -3,9 +3,10 @@
 For each case (M1-M4 at the paper's power limits, and M3, M4 at 20 W; M1 and M2's own limits are
 20 W) this solves the planar-step problem twice:
 
-- **ours**: ``biped_jax`` as the study runs it (``study.solve_paper_models``: every start family without
-  a power limit, the best at the model's limit, 20 W warm-started; multiple shooting, augmented
-  Lagrangian over optax), from its own starts only;
+- **ours**: ``biped_jax`` as the study runs it (``gait_solver.solve_multistart`` with SLSQP: every start
+  family of ``study.STUDY_FAMILIES`` in the coarse space, the cheapest per model carried into the
+  study's space, 20 W warm-started from it; ``--solver al`` runs the augmented-Lagrangian continuation
+  of ``study.solve_paper_models`` instead), from its own starts only;
 - **peer**: ``collocation_peer.solve`` (CasADi + IPOPT, Hermite-Simpson, written from the spec), on
   ``--segments`` segments and again on twice as many (its own mesh check).
 
@@ -47,7 +48,8 @@ def main():
                         help="subset, e.g. M2 M4@20W (default: M1-M4 at the paper's limits and at 20 W)")
     parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
     parser.add_argument("--spans", type=int, default=16)
-    parser.add_argument("--substeps", type=int, default=8)
+    parser.add_argument("--substeps", type=int, default=12)
+    parser.add_argument("--solver", choices=("sqp", "al"), default="sqp")
     parser.add_argument("--shooting-segments", type=int, default=16, help="our shooting segments")
     parser.add_argument("--warm", action="store_true", help="solve ours a second time for the warm wall time")
     parser.add_argument("--name", default="vs_collocation")
@@ -58,7 +60,7 @@ def main():
     import jax.numpy as jnp
     import numpy as np
 
-    from biped_jax import gait, study
+    from biped_jax import gait, gait_solver, study
     from biped_jax.gait_solver import GaitSolver
 
     cases = [(m, m.power_limit) for m in study.PAPER_MODELS] + [(m, 20.0) for m in study.PAPER_MODELS]
@@ -69,17 +71,29 @@ def main():
         if not cases:
             parser.error(f"--cases {args.cases}: none of M1..M4 or M3@20W, M4@20W")
 
-    settings = dataclasses.replace(study.CONTINUATION_SETTINGS, spans=args.spans, substeps=args.substeps,
+    settings = dataclasses.replace(study.STUDY_SETTINGS, spans=args.spans, substeps=args.substeps,
                                    segments=args.shooting_segments)
     rows = list({m.name: m for m, _ in cases}.values())
     at_20 = [c for c in cases if c[1] != c[0].power_limit]
 
-    solver = GaitSolver(settings, study.CONTINUATION_OPTIONS)  # compiled on first use, reused when warm
+    # compiled on first use, reused when warm
+    if args.solver == "sqp":
+        solver = GaitSolver(settings).using(study.SQP_OPTIONS)
+        coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False).using(
+            study.COARSE_SQP_OPTIONS)
+    else:
+        solver = GaitSolver(settings, study.CONTINUATION_OPTIONS)
+
+    def paper_models():
+        if args.solver == "al":
+            return study.solve_paper_models(solver, rows=rows, progress=print)[0]
+        models = [gait.gait_model(m.mass_class, m.speed, m.power_limit) for m in rows]
+        return gait_solver.solve_multistart(solver, [m.name for m in rows], models, families=study.STUDY_FAMILIES,
+                                            coarse=coarse)
 
     def ours_once():
-        """The study's way: every family without a power limit, the best at the model's own limit,
-        20 W warm-started from it."""
-        solutions, _ = study.solve_paper_models(solver, rows=rows, progress=print)
+        """The study's way: the paper's models from every family, 20 W warm-started from them."""
+        solutions = paper_models()
         found = {s.name: s for s in solutions}
         if at_20:
             models = [gait.gait_model(m.mass_class, m.speed, p) for m, p in at_20]
@@ -116,7 +130,8 @@ def main():
               flush=True)
     warm = "not measured (--warm)" if ours_warm is None else f"{ours_warm:.0f} s warm"
     print(f"ours: {len(cases)} cases, {ours_time:.0f} s cold (compile included), {warm}")
-    save_results(args.name, {"segments": args.segments, "spans": args.spans, "substeps": args.substeps},
+    save_results(args.name, {"segments": args.segments, "spans": args.spans, "substeps": args.substeps,
+                             "shooting_segments": args.shooting_segments, "solver": args.solver},
                  rows, args.out)
 
 

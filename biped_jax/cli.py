@@ -170,13 +170,13 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, settings, bisections: int, resume: bool = False) -> dict:
+def reproduce(out: Path, settings, bisections: int, resume: bool = False, method: str = "sqp") -> dict:
     """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
     from biped_jax import study
 
     started = time.perf_counter()
     with live_progress(("M1-M4", "20 W:", "restart:")) as progress:
-        results = study.run_study(out, settings, bisections, progress, resume=resume)
+        results = study.run_study(out, settings, bisections, progress, resume=resume, method=method)
     for record in results["models"]:
         check = record["refinement"]
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -330,16 +330,21 @@ def _out_argument(parser) -> None:
                              "in OUT/compile_profile.json and a summary at the end")
 
 
-def _space_arguments(parser, when: str = "") -> None:
-    """The gait problem's reference space and grid (``biped_jax.gait.GaitSettings``)."""
+def _space_arguments(parser, when: str = "", substeps: int = 8, segments: bool = False) -> None:
+    """The gait problem's reference space and grid (``biped_jax.gait.GaitSettings``); ``segments``
+    adds --segments (default: one per knot span)."""
     ranges = checks.GAIT_INTEGER_RANGES
     parser.add_argument("--spans", type=_integer("spans", *ranges["spans"]), default=16,
                         help=f"knot spans of the joint B-splines{when}, {ranges['spans'][0]}-{ranges['spans'][1]} "
                              "(default 16)")
     parser.add_argument("--degree", type=_integer("degree", *ranges["degree"]), default=3,
                         help=f"B-spline degree{when}, {ranges['degree'][0]}-{ranges['degree'][1]} (default 3)")
-    parser.add_argument("--substeps", type=_substeps, default=8,
-                        help=f"Runge-Kutta steps per knot span, even{when} (default 8)")
+    parser.add_argument("--substeps", type=_substeps, default=substeps,
+                        help=f"Runge-Kutta steps per knot span, even{when} (default {substeps})")
+    if segments:
+        parser.add_argument("--segments", type=_integer("segments", 1, ranges["spans"][1]), default=None,
+                            help="shooting segments of the stance angle, dividing --spans (1: single shooting; "
+                                 "default: one per knot span)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -347,7 +352,9 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("reproduce", help="run the paper's study and write results")
     _out_argument(run)
-    _space_arguments(run)
+    _space_arguments(run, substeps=12, segments=True)
+    run.add_argument("--solver", choices=("sqp", "al"), default="sqp",
+                     help="sqp: SLSQP from every start family (default); al: the batched augmented Lagrangian")
     run.add_argument("--bisections", type=_integer("bisections", 1, 30), default=6,
                      help="bisection steps for the smallest feasible power limit, 1-30 (default 6)")
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
@@ -503,7 +510,8 @@ def _run(args) -> int:
         from biped_jax.gait import GaitSettings
         try:
             settings = GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
-                                    dynamics=getattr(args, "dynamics", "chain"))
+                                    dynamics=getattr(args, "dynamics", "chain"),
+                                    segments=getattr(args, "segments", 1) or args.spans)
         except ValueError as error:
             parser.error(str(error))
     if args.command == "kelly":
@@ -521,7 +529,7 @@ def _run(args) -> int:
     if args.command == "codesign":
         codesign(args.out, settings, args.iterations, args.resume)
         return 0
-    reproduce(args.out, settings, args.bisections, args.resume)
+    reproduce(args.out, settings, args.bisections, args.resume, args.solver)
     return 0
 
 

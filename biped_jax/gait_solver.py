@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Callable
 
 import jax
@@ -21,6 +22,7 @@ import numpy as np
 from biped_jax import augmented_lagrangian as al
 from biped_jax import gait
 from biped_jax import hybrid_step as hs
+from biped_jax import sqp
 from biped_jax.robot_specs import PLANAR_SPECS
 
 #: Largest violation accepted, in each constraint group's own unit.
@@ -143,7 +145,7 @@ class GaitSolver:
     """
 
     def __init__(self, settings: gait.GaitSettings = gait.GaitSettings(),
-                 options: al.SolverOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
+                 options: al.SolverOptions | sqp.SQPOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
                  require_refinement: bool = True, check_refinement: bool = True):
         self.settings, self.options = settings, options
         self.require_refinement = require_refinement and check_refinement
@@ -160,6 +162,7 @@ class GaitSolver:
 
         self.problem = al.ConstrainedProblem.from_residuals(residuals)
         self.compiled = al.compile_problem(self.problem)
+        self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
         self.refined_settings = gait.refined(settings)
         self._simulate_refined = jax.jit(jax.vmap(functools.partial(
@@ -168,11 +171,33 @@ class GaitSolver:
             gait.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
 
     def with_options(self, **changes) -> "GaitSolver":
-        """A solver sharing this one's compiled functions with other solver options."""
+        """A solver sharing this one's compiled functions with other solver options (of the same method)."""
+        return self.using(dataclasses.replace(self.options, **changes))
+
+    def using(self, options: al.SolverOptions | sqp.SQPOptions) -> "GaitSolver":
+        """A solver sharing this one's compiled functions with ``options``; their type is the method:
+        :class:`~biped_jax.augmented_lagrangian.SolverOptions` for the batched augmented Lagrangian,
+        :class:`~biped_jax.sqp.SQPOptions` for SLSQP (one problem after another)."""
+        if not isinstance(options, (al.SolverOptions, sqp.SQPOptions)):
+            raise TypeError(f"options must be SolverOptions or SQPOptions, got {type(options).__name__}")
         other = object.__new__(GaitSolver)
         other.__dict__.update(self.__dict__)
-        other.options = dataclasses.replace(self.options, **changes)
+        other.options = options
         return other
+
+    def _solve_batch(self, x0, batch, progress, names):
+        if isinstance(self.options, sqp.SQPOptions):
+            step = self.options.step
+            if step not in self._compiled_sqp:
+                self._compiled_sqp[step] = sqp.compile_problem(self.problem, step)
+            report = None
+            if progress:
+                def report(b, i, f, v):
+                    progress(i, {"problem": b, "name": names[b], "problems": len(names),
+                                 "cost": np.array([f]), "violation": np.array([v])})
+            return sqp.solve(self.problem, x0, batch, self.options, compiled=self._compiled_sqp[step],
+                             progress=report)
+        return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
     def simulate(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
         """Batched rollout: x (B, n), models with leading dimension B."""
@@ -180,11 +205,12 @@ class GaitSolver:
 
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
-        """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts."""
+        """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts. With SQP
+        options ``progress`` gets (iteration, {"problem": b, "cost": (1,), "violation": (1,)}) per
+        SLSQP iteration of problem b (also "name" and "problems", the batch size)."""
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        result = al.solve(self.problem, x0, batch, self.options, compiled=self.compiled,
-                          progress=progress)
+        result = self._solve_batch(x0, batch, progress, names)
         trajectories = self.simulate(jnp.asarray(result.x), batch)
         refined = self._simulate_refined(jnp.asarray(result.x), batch) if self.check_refinement else None
         solutions = []
@@ -213,8 +239,10 @@ class GaitSolver:
 def coarse_settings(settings: gait.GaitSettings, factor: int = 4) -> gait.GaitSettings:
     """The reference space ``factor`` times coarser (fewer knot spans, the same grading, so the fine
     space contains it when ``spans`` is a multiple of ``factor``), on a grid with as many steps per
-    span: the continuation's first stage."""
-    return dataclasses.replace(settings, spans=max(1, settings.spans // factor))
+    span, shot in as many segments as divide both (multiple shooting kept where it fits): the
+    continuation's first stage."""
+    spans = max(1, settings.spans // factor)
+    return dataclasses.replace(settings, spans=spans, segments=math.gcd(spans, settings.segments))
 
 
 def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitModel],

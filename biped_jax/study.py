@@ -13,7 +13,7 @@ import numpy as np
 
 from biped_jax import augmented_lagrangian as al
 from biped_jax import drive_selection, gait, gait_report, outputs
-from biped_jax import gait_solver
+from biped_jax import gait_solver, sqp
 from biped_jax.gait_solver import GaitSolution, GaitSolver
 
 
@@ -48,8 +48,10 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bise
     """
     rows = [PaperModel(s.name, "12kg" if s.mass_kg < 15 else "18kg", s.speed_mps, s.power_limit_W)
             for s in solutions]
-    # Warm starts converge in a few outer iterations; a limit that fails after 12 is counted as failed.
-    bisection_solver = solver.with_options(max_outer=12)
+    # Warm starts converge in a few outer iterations (SLSQP: tens of iterations); a limit that fails
+    # after 12 (300) is counted as failed.
+    bisection_solver = solver.with_options(**({"max_iterations": 300} if isinstance(solver.options, sqp.SQPOptions)
+                                              else {"max_outer": 12}))
     high = np.array([s.power_limit_W if s.status == al.CONVERGED else math.nan for s in solutions])
     low = np.zeros(len(solutions))
     # a model without a feasible gait at its own limit has no smallest limit (NaN, null in JSON)
@@ -133,32 +135,60 @@ def _iterations(say, label: str, options: al.SolverOptions):
                               f"{np.max(row['violation']):.1e}, J = " + ", ".join(f"{c:.3f}" for c in row["cost"]))
 
 
-def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bisections: int = 6,
-              progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
+#: The study's reference space and grid: 16 cubic knot spans graded 0.5 towards the impacts, the stance
+#: angle shot in every span, 12 Runge-Kutta steps per span. With 8 steps per span M2's SLSQP optimum at
+#: 20 W sits on the power limit at the grid points and 0.216 W (1.08 % of M_W) above it between them
+#: (a 4x finer grid); 12 steps keep that within the refinement check's 1 %.
+STUDY_SETTINGS = gait.GaitSettings(segments=16, substeps=12)
+
+#: The study's start families: every heuristic family, the flexed-impact ones included.
+STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
+
+#: SLSQP in the coarse space (choosing the start per model) and in the study's space.
+COARSE_SQP_OPTIONS = sqp.SQPOptions(max_iterations=200)
+SQP_OPTIONS = sqp.SQPOptions()
+
+#: The study's solvers: "sqp" (SLSQP, the default) or "al" (the batched augmented Lagrangian of the
+#: first two generations, kept for comparison and for batches of designs).
+METHODS = ("sqp", "al")
+
+
+def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS, bisections: int = 6,
+              progress: Callable[[str], None] | None = None, resume: bool = False, method: str = "sqp") -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
-    space: :func:`biped_jax.gait_solver.solve_multistart`), M1-M4 at 20 W (one batch, warm-started)
+    space: :func:`biped_jax.gait_solver.solve_multistart`), M1-M4 at 20 W (warm-started)
     and the minimal power limits; writes
     results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
     stage is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes the stages found there for these
     settings instead of solving them again."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
-    key = {"settings": dataclasses.asdict(settings), "bisections": bisections}
+    key = {"settings": dataclasses.asdict(settings), "bisections": bisections, "method": method}
     solver = GaitSolver(settings)
     # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
     coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False)
+    families = gait.START_FAMILIES
+    if method == "sqp":
+        solver, coarse, families = solver.using(SQP_OPTIONS), coarse.using(COARSE_SQP_OPTIONS), STUDY_FAMILIES
     names = [r.name for r in PAPER_MODELS]
 
     def report(label):
+        if method == "sqp":
+            return lambda i, row: say(
+                f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at "
+                f"most {solver.options.max_iterations}, J = {row['cost'][0]:.4f}, scaled violation "
+                f"{row['violation'][0]:.1e}")
         return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {solver.options.max_outer}, "
                                   f"largest scaled violation {np.max(row['violation']):.1e} (done below "
                                   f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}")
 
-    say(f"compiling the gait problems; M1-M4 from {len(gait.START_FAMILIES)} starts each in one batch "
-        f"({coarse.settings.spans} knot spans), then the best in {settings.spans} spans")
+    say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
+        f"spans), then the best in {settings.spans} spans ({'SLSQP' if method == 'sqp' else 'augmented Lagrangian'})")
     solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
-        solver, names, _models(PAPER_MODELS), coarse=coarse,
+        solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
         progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row)), resume, say)
     say("M1-M4 at M_W = 20 W")
     at_20 = outputs.stage(out, "at_20W", key, lambda: solver.solve(
@@ -188,7 +218,7 @@ def run_study(out: Path, settings: gait.GaitSettings = gait.GaitSettings(), bise
         "models": records,
         "at_20W": [gait_report.results_record(s) for s in at_20],
         "settings": dataclasses.asdict(settings),
-        "solver": dataclasses.asdict(solver.options),
+        "solver": {"method": method, **dataclasses.asdict(solver.options)},
         "violation_tolerance_own_units": 1e-4,
     }
     outputs.write_json(out / "results.json", results)

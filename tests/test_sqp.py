@@ -1,0 +1,63 @@
+"""SLSQP on a ConstrainedProblem (biped_jax.sqp): known optima, multipliers in our sign convention,
+infeasibility named, and on the gait: the same optimum from different start families."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax import augmented_lagrangian as al
+from biped_jax import gait, sqp
+from biped_jax.gait_solver import GaitSolver
+
+
+def _projection_problem():
+    """min |x - p|^2 s.t. x0 + x1 = 1, x0 >= 0.8 (as 0.8 - x0 <= 0): the nearest point of a ray."""
+    return al.ConstrainedProblem.from_functions(
+        lambda x, p: jnp.sum((x - p) ** 2), lambda x, p: jnp.array([x[0] + x[1] - 1.0]),
+        lambda x, p: jnp.array([0.8 - x[0]]))
+
+
+def test_known_optima_and_multipliers_of_a_batch():
+    points = jnp.array([[1.0, 2.0], [3.0, 0.0]])
+    result = sqp.solve(_projection_problem(), jnp.zeros((2, 2)), points)
+    # the projection of (1, 2) onto x0 + x1 = 1 is (0, 1), cut by x0 >= 0.8: (0.8, 0.2), bound active;
+    # (3, 0) projects to (2, -1) with the bound inactive
+    np.testing.assert_allclose(result.x, [[0.8, 0.2], [2.0, -1.0]], atol=1e-7)
+    assert result.status == [al.CONVERGED, al.CONVERGED]
+    # KKT in our convention, grad f + lam_eq grad h + lam_in grad g = 0 with lam_in >= 0:
+    # case 1: 2(x - p) = (-0.4, -3.6) = -lam_eq (1, 1) - lam_in (-1, 0) -> lam_eq = 3.6, lam_in = 3.2
+    np.testing.assert_allclose(result.multipliers_eq[:, 0], [3.6, 2.0], atol=1e-6)
+    np.testing.assert_allclose(result.multipliers_in[:, 0], [3.2, 0.0], atol=1e-6)
+    assert np.all(result.stationarity < 1e-6)
+    # one history row per iteration, the problem that finished first holding its values
+    assert result.history[-1]["cost"] == pytest.approx(result.cost)
+    assert len(result.history) == max(result.outer_iterations) + 1
+
+
+def test_an_infeasible_problem_is_named_infeasible():
+    problem = al.ConstrainedProblem.from_functions(
+        lambda x, p: jnp.sum(x**2), lambda x, p: jnp.array([x[0]]), lambda x, p: jnp.array([p - x[0]]))
+    result = sqp.solve(problem, jnp.ones((1, 2)), jnp.array([1.0]))
+    assert result.status == [al.INFEASIBLE] and result.violation[0] >= 0.1
+
+
+def test_gait_solutions_are_kkt_points_and_fixed_points():
+    """M2 at 20 W in a 2-span space from a straight-stance and a flexed-impact start: both end at KKT
+    points (feasible in every group in its own unit, |grad f + J^T lambda| small with SLSQP's
+    multipliers), and solving again from the cheaper one stays there (the augmented Lagrangian, started
+    at the study's M2 optimum, left it for a 63 % dearer one: README "Solvers")."""
+    settings = gait.GaitSettings(spans=2, substeps=4, segments=2)
+    model = gait.gait_model("12kg", 0.555, 20.0)
+    solver = GaitSolver(settings, require_refinement=False).using(sqp.SQPOptions(max_iterations=300))
+    families = (gait.START_FAMILIES[0], gait.IMPACT_FAMILIES[1])
+    x0 = jnp.stack([gait.initial_guess(model, settings, solver.leg_length, family=f) for f in families])
+    solutions = solver.solve(["straight", "flexed impact"], [model, model], x0=x0)
+    for solution in solutions:
+        assert solution.status == al.CONVERGED, (solution.status, solution.violations)
+        assert solution.max_violation <= 1e-4 and solution.stationarity <= 1e-3
+        assert np.all(solution.multipliers_in >= 0)
+    best = min(solutions, key=lambda s: s.cost)
+    again, = solver.solve(["again"], [model], x0=jnp.asarray(best.x)[None])
+    assert again.status == al.CONVERGED
+    assert again.cost == pytest.approx(best.cost, rel=1e-6)
+    assert again.outer_iterations <= 5
