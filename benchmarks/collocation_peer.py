@@ -106,8 +106,13 @@ def _model(spec: PlanarBipedSpec):
     return outputs, impact_f, hip_fn
 
 
-def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, print_level: int = 0) -> dict:
-    """Hermite-Simpson transcription with ``segments`` segments; returns J, status, the solution."""
+def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, print_level: int = 0,
+          minimise_power_limit: bool = False) -> dict:
+    """Hermite-Simpson transcription with ``segments`` segments; returns J, status, the solution.
+
+    ``minimise_power_limit``: the power limit becomes a variable (started at ``problem.power_limit``)
+    and the objective; the result's "power_limit" is the smallest limit with a gait of this mesh,
+    "cost" that gait's J."""
     started = time.perf_counter()
     spec = problem.spec
     outputs, impact, hip_fn = _model(spec)
@@ -118,13 +123,14 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
     phi = opti.variable(5, nodes)
     phid = opti.variable(5, nodes)
     u = opti.variable(4, nodes)
+    limit = opti.variable() if minimise_power_limit else problem.power_limit
     f = []
     for k in range(nodes):
         phidd, force, foot, foot_v, hip_z, knee1_z, knee2_z = outputs(phi[:, k], phid[:, k], u[:, k])
         f.append(ca.vertcat(phid[:, k], phidd))
         rates = RELATIVE_JOINTS @ phid[:, k]
         power = rates * u[:, k]
-        opti.subject_to(opti.bounded(-problem.power_limit, power, problem.power_limit))
+        opti.subject_to(opti.bounded(-limit, power, limit))
         opti.subject_to(opti.bounded(-problem.torque_bound, u[:, k], problem.torque_bound))
         opti.subject_to(force[1] >= 0)
         opti.subject_to(opti.bounded(-problem.friction * force[1], force[0], problem.friction * force[1]))
@@ -152,7 +158,12 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
     opti.subject_to(impulse[1] >= 0)
     opti.subject_to(opti.bounded(-problem.friction * impulse[1], impulse[0], problem.friction * impulse[1]))
     opti.subject_to(old_foot_v[1] >= 0)
-    opti.minimize(cost)
+    if minimise_power_limit:
+        opti.subject_to(limit >= 0)
+        opti.set_initial(limit, problem.power_limit)
+        opti.minimize(limit)
+    else:
+        opti.minimize(cost)
     # a heuristic start of the peer's own: straight legs mirrored, torso upright, swing knee flexed
     if guess is None:
         s = np.linspace(0, 1, nodes)
@@ -174,7 +185,8 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
         status = opti.stats()["return_status"]
         value = opti.debug.value
     stats = opti.stats()
-    return {"cost": float(value(cost)), "status": status, "ipopt_status": stats["return_status"],
+    return {"cost": float(value(cost)), "power_limit": float(value(limit)), "status": status,
+            "ipopt_status": stats["return_status"],
             "iterations": int(stats["iter_count"]), "segments": segments, "wall_time_s": time.perf_counter() - started,
             "phi": np.asarray(value(phi)), "phid": np.asarray(value(phid)), "u": np.asarray(value(u)),
             "t": np.linspace(0, t_f, nodes)}

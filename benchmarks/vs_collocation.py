@@ -47,10 +47,11 @@ def main():
     parser.add_argument("--cases", nargs="*", default=None,
                         help="subset, e.g. M2 M4@20W (default: M1-M4 at the paper's limits and at 20 W)")
     parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
-    parser.add_argument("--spans", type=int, default=16)
-    parser.add_argument("--substeps", type=int, default=12)
+    parser.add_argument("--spans", type=int, default=None, help="ours (default: the study's)")
+    parser.add_argument("--substeps", type=int, default=None, help="ours (default: the study's)")
     parser.add_argument("--solver", choices=("sqp", "al"), default="sqp")
-    parser.add_argument("--shooting-segments", type=int, default=16, help="our shooting segments")
+    parser.add_argument("--shooting-segments", type=int, default=None,
+                        help="our shooting segments (default: the study's)")
     parser.add_argument("--warm", action="store_true", help="solve ours a second time for the warm wall time")
     parser.add_argument("--name", default="vs_collocation")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
@@ -71,16 +72,15 @@ def main():
         if not cases:
             parser.error(f"--cases {args.cases}: none of M1..M4 or M3@20W, M4@20W")
 
-    settings = dataclasses.replace(study.STUDY_SETTINGS, spans=args.spans, substeps=args.substeps,
-                                   segments=args.shooting_segments)
+    given = {"spans": args.spans, "substeps": args.substeps, "segments": args.shooting_segments}
+    settings = dataclasses.replace(study.STUDY_SETTINGS, **{k: v for k, v in given.items() if v is not None})
     rows = list({m.name: m for m, _ in cases}.values())
     at_20 = [c for c in cases if c[1] != c[0].power_limit]
 
     # compiled on first use, reused when warm
     if args.solver == "sqp":
-        solver = GaitSolver(settings).using(study.SQP_OPTIONS)
-        coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False).using(
-            study.COARSE_SQP_OPTIONS)
+        solvers = study.study_solvers(settings, "sqp")
+        solver, coarse = solvers.fine, solvers.coarse
     else:
         solver = GaitSolver(settings, study.CONTINUATION_OPTIONS)
 
@@ -130,8 +130,8 @@ def main():
               flush=True)
     warm = "not measured (--warm)" if ours_warm is None else f"{ours_warm:.0f} s warm"
     print(f"ours: {len(cases)} cases, {ours_time:.0f} s cold (compile included), {warm}")
-    save_results(args.name, {"segments": args.segments, "spans": args.spans, "substeps": args.substeps,
-                             "shooting_segments": args.shooting_segments, "solver": args.solver},
+    save_results(args.name, {"segments": args.segments, "spans": settings.spans, "substeps": settings.substeps,
+                             "shooting_segments": settings.segments, "solver": args.solver},
                  rows, args.out)
 
 

@@ -170,18 +170,19 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, settings, bisections: int, resume: bool = False, method: str = "sqp") -> dict:
+def reproduce(out: Path, settings, resume: bool = False, method: str = "sqp") -> dict:
     """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
     from biped_jax import study
 
     started = time.perf_counter()
-    with live_progress(("M1-M4", "20 W:", "restart:")) as progress:
-        results = study.run_study(out, settings, bisections, progress, resume=resume, method=method)
+    with live_progress(("M1-M4", "20 W:", "restart:", "smallest power limit:")) as progress:
+        results = study.run_study(out, settings, progress, resume=resume, method=method)
     for record in results["models"]:
         check = record["refinement"]
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
                       f"{check['steps']} steps), largest violation {record['max_violation']:.1e}, smallest feasible "
-                      f"M_W {record['min_power_limit_W']:.2f} W")
+                      f"M_W " + ("-" if record["min_power_limit_W"] is None else f"{record['min_power_limit_W']:.3f} W")
+                      + f" ({record['min_power_status']})")
     console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
                   f"convergence.png in {time.perf_counter() - started:.0f} s")
     return results
@@ -330,13 +331,13 @@ def _out_argument(parser) -> None:
                              "in OUT/compile_profile.json and a summary at the end")
 
 
-def _space_arguments(parser, when: str = "", substeps: int = 8, segments: bool = False) -> None:
+def _space_arguments(parser, when: str = "", substeps: int = 8, segments: bool = False, spans: int = 16) -> None:
     """The gait problem's reference space and grid (``biped_jax.gait.GaitSettings``); ``segments``
     adds --segments (default: one per knot span)."""
     ranges = checks.GAIT_INTEGER_RANGES
-    parser.add_argument("--spans", type=_integer("spans", *ranges["spans"]), default=16,
+    parser.add_argument("--spans", type=_integer("spans", *ranges["spans"]), default=spans,
                         help=f"knot spans of the joint B-splines{when}, {ranges['spans'][0]}-{ranges['spans'][1]} "
-                             "(default 16)")
+                             f"(default {spans})")
     parser.add_argument("--degree", type=_integer("degree", *ranges["degree"]), default=3,
                         help=f"B-spline degree{when}, {ranges['degree'][0]}-{ranges['degree'][1]} (default 3)")
     parser.add_argument("--substeps", type=_substeps, default=substeps,
@@ -347,16 +348,19 @@ def _space_arguments(parser, when: str = "", substeps: int = 8, segments: bool =
                                  "default: one per knot span)")
 
 
+#: ``study.STUDY_SETTINGS``' knot spans and steps per span, the defaults of ``reproduce`` (written here:
+#: the parser imports no JAX; tests/test_cli.py checks they agree).
+STUDY_SPANS, STUDY_SUBSTEPS = 32, 6
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="biped-jax", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("reproduce", help="run the paper's study and write results")
     _out_argument(run)
-    _space_arguments(run, substeps=12, segments=True)
+    _space_arguments(run, substeps=STUDY_SUBSTEPS, segments=True, spans=STUDY_SPANS)
     run.add_argument("--solver", choices=("sqp", "al"), default="sqp",
                      help="sqp: SLSQP from every start family (default); al: the batched augmented Lagrangian")
-    run.add_argument("--bisections", type=_integer("bisections", 1, 30), default=6,
-                     help="bisection steps for the smallest feasible power limit, 1-30 (default 6)")
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted study in --out from its finished stages (OUT/stages)")
@@ -529,7 +533,7 @@ def _run(args) -> int:
     if args.command == "codesign":
         codesign(args.out, settings, args.iterations, args.resume)
         return 0
-    reproduce(args.out, settings, args.bisections, args.resume, args.solver)
+    reproduce(args.out, settings, args.resume, args.solver)
     return 0
 
 

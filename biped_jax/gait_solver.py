@@ -32,6 +32,11 @@ VIOLATION_TOLERANCE = 1e-4
 GRID_DEPENDENT = "grid dependent"
 #: Largest relative change of J between the solution's grid and the refined one.
 REFINED_COST_CHANGE = 5e-3
+#: The scale of M_W / M_W0 in SLSQP's variables when minimising the power limit (the gait variables are
+#: scaled by the Gauss-Newton matrix of J at the start): the first step lowers the limit by about 1 %,
+#: then the quasi-Newton matrix takes over (M1 from 20 W in 16 spans: 5.9 W after 10 iterations,
+#: 1.7 W after 140). Not tuned further.
+POWER_LIMIT_STEP = 0.1
 #: Largest violation on the refined grid per unit (power: a fraction of M_W, see refined_tolerance).
 _REFINED_TOLERANCE = {"m": 1e-4, "rad": 1e-3, "rad/s": 1e-3, "m/s": 1e-3, "N": 1.0, "N m": 0.05,
                       "N s": 1e-3, "V": 0.1}
@@ -161,6 +166,15 @@ class GaitSolver:
             return gait.cost_residuals(trajectory, model.drives), equalities, inequalities
 
         self.problem = al.ConstrainedProblem.from_residuals(residuals)
+
+        def power_limit_problem(x_limit, model):  # (x, M_W / M_W0): minimise the limit itself
+            x, fraction = x_limit[:-1], x_limit[-1]
+            model = dataclasses.replace(model, power_limit=fraction * model.power_limit)
+            equalities, inequalities = gait.scaled_constraints(gait.constraint_groups(
+                gait.simulate(x, model, biped, settings_), model, settings_))
+            return fraction, equalities, inequalities
+
+        self.power_problem = al.ConstrainedProblem(power_limit_problem)
         self.compiled = al.compile_problem(self.problem)
         self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
@@ -185,18 +199,28 @@ class GaitSolver:
         other.options = options
         return other
 
+    def _sqp_compiled(self, kind: str, step: float) -> sqp.CompiledSQP:
+        """SLSQP's compiled functions of the energy ("energy") or power-limit ("power") problem."""
+        if (kind, step) not in self._compiled_sqp:
+            problem = self.problem if kind == "energy" else self.power_problem
+            self._compiled_sqp[kind, step] = sqp.compile_problem(problem, step)
+        return self._compiled_sqp[kind, step]
+
+    @staticmethod
+    def _sqp_progress(progress, names):
+        if not progress:
+            return None
+
+        def report(b, i, f, v):
+            progress(i, {"problem": b, "name": names[b], "problems": len(names),
+                         "cost": np.array([f]), "violation": np.array([v])})
+        return report
+
     def _solve_batch(self, x0, batch, progress, names):
         if isinstance(self.options, sqp.SQPOptions):
-            step = self.options.step
-            if step not in self._compiled_sqp:
-                self._compiled_sqp[step] = sqp.compile_problem(self.problem, step)
-            report = None
-            if progress:
-                def report(b, i, f, v):
-                    progress(i, {"problem": b, "name": names[b], "problems": len(names),
-                                 "cost": np.array([f]), "violation": np.array([v])})
-            return sqp.solve(self.problem, x0, batch, self.options, compiled=self._compiled_sqp[step],
-                             progress=report)
+            return sqp.solve(self.problem, x0, batch, self.options,
+                             compiled=self._sqp_compiled("energy", self.options.step),
+                             progress=self._sqp_progress(progress, names))
         return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
     def simulate(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
@@ -210,7 +234,53 @@ class GaitSolver:
         SLSQP iteration of problem b (also "name" and "problems", the batch size)."""
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        result = self._solve_batch(x0, batch, progress, names)
+        return self._report(names, models, self._solve_batch(x0, batch, progress, names))
+
+    def minimise_power_limit(self, names: list[str], models: list[gait.GaitModel], x0,
+                             progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
+        """The smallest power limit M_W at which each model walks: SLSQP on (x, M_W / M_W0) minimising
+        the limit (the epigraph form of the smallest largest joint power |qdot u| over feasible
+        gaits), from ``x0`` (B, n), gaits feasible at the models' own limits M_W0.
+
+        Returns per model the gait found, as a :class:`GaitSolution` at the limit it keeps on both
+        grids: ``power_limit_W`` is the larger of the limit reached on the solve grid (in
+        ``refinement["solve_grid_limit_W"]``) and the gait's largest joint power on the refinement
+        grid (the former alone for a solver without the refinement check), so that its status reads
+        whether it is feasible (and grid independent) there; ``cost``
+        is that gait's J (not minimised). Uses this solver's SLSQP options (SQP's defaults with the
+        augmented Lagrangian's)."""
+        options = self.options if isinstance(self.options, sqp.SQPOptions) else sqp.SQPOptions()
+        batch = stack_tree(models)
+        x0 = np.asarray(x0, dtype=float)
+        start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
+        energy = self._sqp_compiled("energy", options.step)
+        scales = []
+        for b in range(len(models)):
+            jac_r = np.asarray(energy.derivatives(jnp.asarray(x0[b]), jax.tree.map(lambda a: a[b], batch))[6])
+            scale = np.zeros((x0.shape[1] + 1,) * 2)
+            gauss_newton = sqp.gauss_newton_scale(jac_r, options.precondition or 1e-6)
+            scale[:-1, :-1] = np.eye(x0.shape[1]) if gauss_newton is None else gauss_newton
+            scale[-1, -1] = POWER_LIMIT_STEP
+            scales.append(scale)
+        result = sqp.solve(self.power_problem, start, batch, options,
+                           compiled=self._sqp_compiled("power", options.step),
+                           progress=self._sqp_progress(progress, names), scales=np.stack(scales))
+        x = result.x[:, :-1]
+        solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
+        limits = solve_grid
+        if self.check_refinement:
+            fine = self._simulate_refined(jnp.asarray(x), batch)
+            limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
+        at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
+        cost = np.array([float(energy.value(jnp.asarray(x[b]), m)[0]) for b, m in enumerate(at_limit)])
+        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost))
+        for solution, limit in zip(solutions, solve_grid):
+            solution.refinement["solve_grid_limit_W"] = float(limit)
+        return solutions
+
+    def _report(self, names: list[str], models: list[gait.GaitModel], result: al.SolveResult) -> list[GaitSolution]:
+        """GaitSolutions of a solver result: re-simulated, checked on the refined grid, classified."""
+        batch = stack_tree(models)
         trajectories = self.simulate(jnp.asarray(result.x), batch)
         refined = self._simulate_refined(jnp.asarray(result.x), batch) if self.check_refinement else None
         solutions = []

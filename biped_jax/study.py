@@ -4,7 +4,6 @@ smallest power limit at which each model still walks."""
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 from typing import Callable
 
@@ -37,41 +36,59 @@ def _models(rows, power_limits=None, step_length: float = 0.2):
     return [gait.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
 
 
-def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], bisections: int = 6,
-                         progress: Callable[[str], None] | None = None) -> list[dict]:
-    """Bisects, per model and all models in one batch, on the power limit M_W between 0 and the
-    limit of its feasible solution, warm-starting from the last feasible gait.
+def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution],
+                         progress: Callable[[int, dict], None] | None = None,
+                         coarse: GaitSolver | None = None) -> list[dict]:
+    """The smallest power limit M_W per model (all models in one call): SLSQP minimising the limit
+    itself over the gait (:meth:`GaitSolver.minimise_power_limit`), started from each model's converged
+    gait at its own limit; with ``coarse``, first in its space (the gaits carried there by least
+    squares), then from there in ``solver``'s (continuation in the space: an iteration in the 4x
+    coarser space costs a tenth).
 
-    Returns per model {"min_power_limit_W": smallest limit with a converged gait found,
-    "bracket_W": [largest limit that failed, that limit], "status_below": the failing status}.
-    A model without a feasible starting solution gets NaN.
+    A gait whose SLSQP stopped at its iteration limit still gives a limit (an upper bound, feasible on
+    both grids, with that status); a gait infeasible on either grid gives none.
+
+    Returns per model {"min_power_limit_W": the smallest limit whose gait keeps it on the solve grid
+    and on the 4x finer one (None when the gait found is not converged there, or the model had no
+    converged gait to start from), "min_power_solve_grid_W": the limit reached on the solve grid,
+    "min_power_status": the gait's status at that limit, "min_power_cost": its J (not minimised),
+    "min_power_gait": the :class:`GaitSolution`}.
     """
-    rows = [PaperModel(s.name, "12kg" if s.mass_kg < 15 else "18kg", s.speed_mps, s.power_limit_W)
-            for s in solutions]
-    # Warm starts converge in a few outer iterations (SLSQP: tens of iterations); a limit that fails
-    # after 12 (300) is counted as failed.
-    bisection_solver = solver.with_options(**({"max_iterations": 300} if isinstance(solver.options, sqp.SQPOptions)
-                                              else {"max_outer": 12}))
-    high = np.array([s.power_limit_W if s.status == al.CONVERGED else math.nan for s in solutions])
-    low = np.zeros(len(solutions))
-    # a model without a feasible gait at its own limit has no smallest limit (NaN, null in JSON)
-    status_below = ["not tried" if np.isfinite(h) else f"no feasible gait at the model's own limit ({s.status})"
-                    for h, s in zip(high, solutions)]
-    warm = np.stack([s.x for s in solutions])
-    for k in range(bisections):
-        middle = np.where(np.isfinite(high), 0.5 * (low + high), np.array([r.power_limit for r in rows]))
-        if progress:
-            progress(f"bisection {k + 1}/{bisections}: M_W = " + ", ".join(f"{m:.2f}" for m in middle))
-        trial = bisection_solver.solve([r.name for r in rows], _models(rows, middle), x0=jnp.asarray(warm))
-        for b, solution in enumerate(trial):
-            if not np.isfinite(high[b]):
-                continue
-            if solution.status == al.CONVERGED:
-                high[b], warm[b] = middle[b], solution.x
-            else:
-                low[b], status_below[b] = middle[b], solution.status
-    return [{"min_power_limit_W": float(h), "bracket_W": [float(lo), float(h)], "status_below": st}
-            for lo, h, st in zip(low, high, status_below)]
+    usable = [b for b, s in enumerate(solutions) if s.status == al.CONVERGED]
+    found = {}
+    if usable:
+        rows = [solutions[b] for b in usable]
+        models = [gait.gait_model("12kg" if s.mass_kg < 15 else "18kg", s.speed_mps, s.power_limit_W,
+                                  s.step_length_m) for s in rows]
+        names = [s.name for s in rows]
+        x0 = np.stack([s.x for s in rows])
+        if coarse is not None:
+            tagged = (lambda i, row: progress(i, {**row, "space": "coarse"})) if progress else None
+            carried = np.stack([gait.project(s.x, solver.settings, coarse.settings, s.trajectory) for s in rows])
+            first = coarse.minimise_power_limit(names, models, carried, progress=tagged)
+            # from the coarse space's gait and limit (2 % above it: the carried gait is close, not equal)
+            carried_on = [c.max_violation <= gait_solver.VIOLATION_TOLERANCE for c in first]
+            x0 = np.stack([gait.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
+                           for c, s, ok in zip(first, rows, carried_on)])
+            models = [dataclasses.replace(m, power_limit=jnp.asarray(1.02 * c.power_limit_W)) if ok else m
+                      for m, c, ok in zip(models, first, carried_on)]
+        minima = solver.minimise_power_limit(names, models, x0, progress=progress)
+        found = dict(zip(usable, minima))
+    records = []
+    for b, solution in enumerate(solutions):
+        if b not in found:
+            records.append({"min_power_limit_W": None, "min_power_solve_grid_W": None,
+                            "min_power_status": f"no converged gait at the model's own limit ({solution.status})",
+                            "min_power_cost": None, "min_power_gait": None})
+            continue
+        minimum = found[b]
+        feasible = minimum.status in (al.CONVERGED, al.ITERATION_LIMIT) and minimum.refinement["passed"] \
+            and minimum.max_violation <= gait_solver.VIOLATION_TOLERANCE
+        records.append({"min_power_limit_W": minimum.power_limit_W if feasible else None,
+                        "min_power_solve_grid_W": minimum.refinement["solve_grid_limit_W"],
+                        "min_power_status": minimum.status, "min_power_cost": minimum.cost,
+                        "min_power_gait": minimum})
+    return records
 
 
 #: The continuation pipeline's space (:func:`solve_paper_models`; opt-in, not yet the study's default,
@@ -130,16 +147,22 @@ def solve_paper_models(solver: GaitSolver, families=CONTINUATION_FAMILIES, rows=
     return solutions, by_family
 
 
+def _number(value, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
 def _iterations(say, label: str, options: al.SolverOptions):
     return lambda i, row: say(f"{label}: outer iteration {i + 1}/{options.max_outer}, largest scaled violation "
                               f"{np.max(row['violation']):.1e}, J = " + ", ".join(f"{c:.3f}" for c in row["cost"]))
 
 
-#: The study's reference space and grid: 16 cubic knot spans graded 0.5 towards the impacts, the stance
-#: angle shot in every span, 12 Runge-Kutta steps per span. With 8 steps per span M2's SLSQP optimum at
-#: 20 W sits on the power limit at the grid points and 0.216 W (1.08 % of M_W) above it between them
-#: (a 4x finer grid); 12 steps keep that within the refinement check's 1 %.
-STUDY_SETTINGS = gait.GaitSettings(segments=16, substeps=12)
+#: The study's reference space and grid: 32 cubic knot spans graded 0.5 towards the impacts, the stance
+#: angle shot in every span, 6 Runge-Kutta steps per span (192 in all). 16 spans left J 1.3-1.7 % above
+#: the collocation peer's (M2 at 20 W: 2.8506, grid converged), 32 spans 0.3-0.8 % (2.8145; README,
+#: "Gait optimiser"). The grid: 8 steps per span of 16 (128 in all) left M2's power 0.216 W (1.08 % of
+#: M_W) over the limit between grid points (a 4x finer grid), 12 (192) kept that within the refinement
+#: check's 1 %; 32 x 6 has the same 192 steps.
+STUDY_SETTINGS = gait.GaitSettings(spans=32, segments=32, substeps=6)
 
 #: The study's start families: every heuristic family, the flexed-impact ones included.
 STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
@@ -147,13 +170,49 @@ STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
 #: SLSQP in the coarse space (choosing the start per model) and in the study's space.
 COARSE_SQP_OPTIONS = sqp.SQPOptions(max_iterations=200)
 SQP_OPTIONS = sqp.SQPOptions()
+#: SLSQP minimising the power limit (:func:`minimal_power_limits`).
+POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400)
 
 #: The study's solvers: "sqp" (SLSQP, the default) or "al" (the batched augmented Lagrangian of the
 #: first two generations, kept for comparison and for batches of designs).
 METHODS = ("sqp", "al")
 
 
-def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS, bisections: int = 6,
+@dataclasses.dataclass(frozen=True)
+class StudySolvers:
+    """The study's solvers of one method, sharing compiled programs where they share a space.
+
+    Attributes:
+      fine: in the study's space (every reported gait).
+      coarse: in the 4x coarser space, choosing each model's start (no refinement check).
+      power, coarse_power: ``fine`` and ``coarse`` with SLSQP's options for the smallest power limit
+        (either method).
+      families: the heuristic start families solved in the coarse space.
+    """
+
+    fine: GaitSolver
+    coarse: GaitSolver
+    power: GaitSolver
+    coarse_power: GaitSolver
+    families: tuple
+
+
+def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS, method: str = "sqp") -> StudySolvers:
+    """The solvers of :func:`run_study` (and of ``benchmarks/vs_collocation.py``) for ``method``
+    (one of :data:`METHODS`); raises ValueError naming another."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    fine = GaitSolver(settings)
+    # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
+    coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False)
+    if method == "sqp":
+        return StudySolvers(fine.using(SQP_OPTIONS), coarse.using(COARSE_SQP_OPTIONS), fine.using(POWER_SQP_OPTIONS),
+                            coarse.using(POWER_SQP_OPTIONS), STUDY_FAMILIES)
+    return StudySolvers(fine, coarse, fine.using(POWER_SQP_OPTIONS), coarse.using(POWER_SQP_OPTIONS),
+                        gait.START_FAMILIES)
+
+
+def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
               progress: Callable[[str], None] | None = None, resume: bool = False, method: str = "sqp") -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
     space: :func:`biped_jax.gait_solver.solve_multistart`), M1-M4 at 20 W (warm-started)
@@ -162,17 +221,11 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS, bisection
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
     stage is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes the stages found there for these
     settings instead of solving them again."""
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    solvers = study_solvers(settings, method)
+    solver, coarse, families = solvers.fine, solvers.coarse, solvers.families
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
-    key = {"settings": dataclasses.asdict(settings), "bisections": bisections, "method": method}
-    solver = GaitSolver(settings)
-    # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
-    coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False)
-    families = gait.START_FAMILIES
-    if method == "sqp":
-        solver, coarse, families = solver.using(SQP_OPTIONS), coarse.using(COARSE_SQP_OPTIONS), STUDY_FAMILIES
+    key = {"settings": dataclasses.asdict(settings), "method": method}
     names = [r.name for r in PAPER_MODELS]
 
     def report(label):
@@ -206,13 +259,18 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS, bisection
         solutions = [r if (b in better and r.status == al.CONVERGED and r.cost < s.cost) else s
                      for b, (s, r) in enumerate(zip(solutions, restarted))]
     say("smallest feasible power limit per model")
-    minimal = outputs.stage(out, "minimal_power_limits", key,
-                    lambda: minimal_power_limits(solver, solutions, bisections, progress=say), resume, say)
+    minimal = outputs.stage(out, "minimal_power_limits", key, lambda: minimal_power_limits(
+        solvers.power, solutions, coarse=solvers.coarse_power, progress=lambda i, row: say(
+            f"smallest power limit ({row.get('space', 'study')} space): {row['name']} ({row['problem'] + 1} of "
+            f"{row['problems']}), SLSQP iteration {i} of at most {solvers.power.options.max_iterations}, "
+            f"M_W / start = {row['cost'][0]:.4f}, scaled violation {row['violation'][0]:.1e}")), resume, say)
 
     records = []
     for solution, minimum in zip(solutions, minimal):
         record = gait_report.results_record(solution)
-        record.update(minimum)
+        gait_at_minimum = minimum["min_power_gait"]
+        record.update(minimum, min_power_gait=None if gait_at_minimum is None
+                      else gait_report.results_record(gait_at_minimum))
         records.append(record)
     results = {
         "models": records,
@@ -229,10 +287,11 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS, bisection
                "| largest power there [% of M_W over] |", "|---|---|---|---|---|---|"]
     tables += [f"| {s.name} | {s.status} | {s.cost:.4g} | {s.max_violation:.1e} | {s.refinement['cost']:.4g} "
                f"| {100 * s.refinement['power_margin_fraction']:.2f} |" for s in at_20]
-    tables += ["", "## Smallest power limit with a feasible gait", "",
-               "| model | M_W [W] | bracket [W] |", "|---|---|---|"]
-    tables += [f"| {n} | {m['min_power_limit_W']:.2f} | {m['bracket_W'][0]:.2f}-{m['bracket_W'][1]:.2f} |"
-               for n, m in zip(names, minimal)]
+    tables += ["", "## Smallest power limit with a feasible gait (SLSQP minimising M_W)", "",
+               f"| model | smallest M_W [W] (kept on {solver.refined_settings.steps} steps) | on the solve grid [W] "
+               "| status | J of that gait |", "|---|---|---|---|---|"]
+    tables += [f"| {n} | {_number(m['min_power_limit_W'], '.3f')} | {_number(m['min_power_solve_grid_W'], '.3f')} "
+               f"| {m['min_power_status']} | {_number(m['min_power_cost'], '.4g')} |" for n, m in zip(names, minimal)]
     outputs.write_text(out / "tables.md", "\n".join(tables) + "\n")
     gait_report.plot_figure_2(solutions, out / "fig2_trajectories.png")
     gait_report.plot_figure_3(solutions, out / "fig3_torque_rpm.png")

@@ -36,7 +36,6 @@ CLI_ROWS = [
     (["reproduce", "--spans", "2.5"], "got '2.5'"),
     (["reproduce", "--degree", "100"], "--degree must be an integer in [2, 7], got '100'"),
     (["reproduce", "--substeps", "3"], "--substeps must be even"),
-    (["reproduce", "--bisections", "0"], "--bisections must be an integer in [1, 30], got '0'"),
     (["kelly", "--degree", "1"], "--degree must be an integer in [2, 7], got '1'"),
     (["donald", "--steps", "-1"], "--steps must be an integer in [1, 1000], got '-1'"),
     (["humanoid", "--model", "M9"], "'M9'"),

@@ -67,7 +67,7 @@ def test_reproduce_writes_the_study(tmp_path):
     tests/test_planar_chain.py; several times faster): files exist and results.json is consistent
     with itself."""
     assert cli.main(["reproduce", "--out", str(tmp_path), "--spans", "4", "--substeps", "4",
-                     "--bisections", "1", "--dynamics", "chain"]) == 0
+                     "--dynamics", "chain"]) == 0
     results = json.loads((tmp_path / "results.json").read_text())
     assert results["settings"]["dynamics"] == "chain"
     assert [m["model"] for m in results["models"]] == ["M1", "M2", "M3", "M4"]
@@ -82,10 +82,14 @@ def test_reproduce_writes_the_study(tmp_path):
         for joint in record["joints"].values():
             assert joint["power_max"] <= record["power_limit_W"] + 1e-4
         assert len(record["starts"]) == len(study.STUDY_FAMILIES)
-        if record["status"] == "converged":
-            low, high = record["bracket_W"]
-            assert low <= high <= record["power_limit_W"]
-            assert record["min_power_limit_W"] == high
+        if record["status"] != "converged":
+            assert record["min_power_limit_W"] is None
+        elif record["min_power_status"] == "converged":
+            # the smallest limit: below the model's own, kept on the solve grid and the finer one
+            assert record["min_power_solve_grid_W"] <= record["min_power_limit_W"] < record["power_limit_W"]
+            gait_at_minimum = record["min_power_gait"]
+            assert gait_at_minimum["power_limit_W"] == record["min_power_limit_W"]
+            assert gait_at_minimum["refinement"]["passed"]
         else:
             assert record["min_power_limit_W"] is None
     assert [m["power_limit_W"] for m in results["at_20W"]] == [20.0] * 4
@@ -105,6 +109,13 @@ def test_donald_command_writes_its_report(tmp_path):
     assert replay["qpos"].shape == (len(replay["t"]), 12)
     for name in ("donald_walk.png", "donald_torque_speed.png"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_reproduce_defaults_are_the_study_settings():
+    """The parser (no JAX imported) states the study's space and grid as defaults of its own."""
+    args = cli._parser().parse_args(["reproduce"])
+    assert (args.spans, args.substeps) == (study.STUDY_SETTINGS.spans, study.STUDY_SETTINGS.substeps)
+    assert cli.STUDY_SPANS == study.STUDY_SETTINGS.spans
 
 
 def test_reproduce_rejects_bad_settings():

@@ -61,3 +61,17 @@ def test_gait_solutions_are_kkt_points_and_fixed_points():
     assert again.status == al.CONVERGED
     assert again.cost == pytest.approx(best.cost, rel=1e-6)
     assert again.outer_iterations <= 5
+
+    # the smallest power limit from the cheaper gait: SLSQP on (x, M_W) minimising M_W
+    minimum, = solver.minimise_power_limit(["smallest"], [model], best.x[None])
+    assert minimum.status == al.CONVERGED, (minimum.status, minimum.violations)
+    assert minimum.stationarity <= 1e-3  # a KKT point of min M_W: the limit is locally smallest
+    solve_grid = minimum.refinement["solve_grid_limit_W"]
+    assert solve_grid < 0.9 * 20.0
+    peak = np.max(np.abs(minimum.trajectory.joint_power))
+    assert peak == pytest.approx(solve_grid, rel=1e-3)  # the limit binds (else it was not the smallest)
+    # the reported limit is one the gait keeps on the finer grid too
+    assert minimum.power_limit_W >= solve_grid
+    assert minimum.refinement["violations"]["power_limit"] <= 1e-6
+    assert minimum.cost == pytest.approx(float(gait.cost(minimum.trajectory)), rel=1e-9)
+
