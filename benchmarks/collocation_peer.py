@@ -202,13 +202,20 @@ def main():
     parser.add_argument("--speed", type=float, default=0.555, help="m/s")
     parser.add_argument("--power-limit", type=float, default=20.0, help="W")
     parser.add_argument("--segments", type=int, default=60)
+    parser.add_argument("--minimise-power-limit", action="store_true",
+                        help="solve at --power-limit, then minimise the limit from that gait (the smallest M_W)")
     parser.add_argument("--name", default="collocation_peer")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
-    result = solve(PeerProblem(PLANAR_SPECS[args.mass_class], args.speed, args.power_limit), args.segments)
+    problem = PeerProblem(PLANAR_SPECS[args.mass_class], args.speed, args.power_limit)
+    result = solve(problem, args.segments)
     print(f"{args.mass_class} {args.speed} m/s {args.power_limit} W: {result['status']} ({result['ipopt_status']}), "
           f"J = {result['cost']:.4f} on {args.segments} segments, {result['iterations']} iterations, "
           f"{result['wall_time_s']:.1f} s")
+    if args.minimise_power_limit:
+        result = solve(problem, args.segments, guess=result, minimise_power_limit=True)
+        print(f"smallest power limit: {result['power_limit']:.4f} W ({result['status']}), J = {result['cost']:.4f} "
+              f"there, {result['wall_time_s']:.1f} s")
     row = {k: v for k, v in result.items() if not isinstance(v, np.ndarray)}
     arrays = {k: v.tolist() for k, v in result.items() if isinstance(v, np.ndarray)}
     save_results(f"{args.name}_{args.mass_class}_{args.speed}_{args.power_limit:g}W",
