@@ -144,11 +144,16 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
     iterations, acceptable = [0], [False]
     f0, h0, g0 = value(x0)
     trace = [(f0, _scaled_violation(h0, g0), counts["evaluations"])]  # (f, violation, evaluations) per iteration
+    # the cheapest feasible iterate: where SLSQP ends infeasible (stalled on a degenerate problem) it
+    # is still a feasible point, reported as stopped short of an optimum
+    best = [(f0, x0)] if trace[0][1] <= options.tolerance else [(np.inf, None)]
 
     def callback(z):
         iterations[0] += 1
         f, h, g = value(to_x(z))
         trace.append((f, _scaled_violation(h, g), counts["evaluations"]))
+        if trace[-1][1] <= options.tolerance and f < best[0][0]:
+            best[0] = (f, to_x(np.array(z)))
         if progress:
             progress(iterations[0], f, trace[-1][1])
         if _acceptable(trace, options):
@@ -170,6 +175,10 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
                       constraints=constraints, method="SLSQP", callback=callback,
                       options={"maxiter": options.max_iterations, "ftol": options.accuracy})
     x = to_x(np.asarray(result.x))
+    ended_infeasible = _scaled_violation(*value(x)[1:]) > options.tolerance
+    fallback = ended_infeasible and best[0][1] is not None
+    if fallback:
+        x = best[0][1]
     f, h, g, grad, jac_h, jac_g, _ = derivatives(x)
     multipliers = np.asarray(getattr(result, "multipliers", np.zeros(h.size + g.size)))
     lam_eq, lam_in = -multipliers[:h.size], np.maximum(multipliers[h.size:], 0.0)
@@ -179,8 +188,8 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
     finite = bool(np.all(np.isfinite(x)) and np.isfinite(f))
     if not finite:
         status = al.DIVERGED
-    elif violation <= options.tolerance and (result.status == 0 or stationarity <= options.stationarity
-                                             or acceptable[0]):
+    elif not fallback and violation <= options.tolerance and (
+            result.status == 0 or stationarity <= options.stationarity or acceptable[0]):
         status = al.CONVERGED
     elif result.status == 9:  # iteration limit
         status = al.ITERATION_LIMIT

@@ -41,6 +41,21 @@ def test_an_infeasible_problem_is_named_infeasible():
     assert result.status == [al.INFEASIBLE] and result.violation[0] >= 0.1
 
 
+def test_a_solve_ended_infeasible_returns_its_cheapest_feasible_iterate():
+    """min -2 x0 s.t. x0^2 <= 1 from 0: SLSQP's first step overshoots to x0 = 2 (infeasible). Stopped
+    there, the result is the last feasible point (the start, an upper bound, `iteration limit`), not
+    the infeasible iterate; given iterations it converges to x0 = 1."""
+    problem = al.ConstrainedProblem(lambda x, p: (-2.0 * x[0] + 0.0 * x[1] ** 2, jnp.zeros(0),
+                                                  jnp.array([x[0] ** 2 - 1.0])))
+    short = sqp.solve(problem, np.zeros((1, 2)), jnp.zeros(1), sqp.SQPOptions(max_iterations=3))
+    assert short.status == [al.ITERATION_LIMIT] and short.violation[0] == 0.0
+    np.testing.assert_allclose(short.x[0], [0.0, 0.0])
+    assert short.history[-1]["violation"][0] > 0.1  # SLSQP itself ended infeasible
+    full = sqp.solve(problem, np.zeros((1, 2)), jnp.zeros(1), sqp.SQPOptions(max_iterations=50))
+    assert full.status == [al.CONVERGED]
+    np.testing.assert_allclose(full.x[0, 0], 1.0, atol=1e-6)
+
+
 def test_gait_solutions_are_kkt_points_and_fixed_points():
     """M2 at 20 W in a 2-span space from a straight-stance and a flexed-impact start: both end at KKT
     points (feasible in every group in its own unit, |grad f + J^T lambda| small with SLSQP's
