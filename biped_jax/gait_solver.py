@@ -37,6 +37,8 @@ REFINED_COST_CHANGE = 5e-3
 #: then the quasi-Newton matrix takes over (M1 from 20 W in 16 spans: 5.9 W after 10 iterations,
 #: 1.7 W after 140). Not tuned further.
 POWER_LIMIT_STEP = 0.1
+#: The gait variables' Gauss-Newton regularisation there when the options turn preconditioning off.
+SQP_PRECONDITION = sqp.SQPOptions.precondition
 #: Largest violation on the refined grid per unit (power: a fraction of M_W, see refined_tolerance).
 _REFINED_TOLERANCE = {"m": 1e-4, "rad": 1e-3, "rad/s": 1e-3, "m/s": 1e-3, "N": 1.0, "N m": 0.05,
                       "N s": 1e-3, "V": 0.1}
@@ -169,9 +171,8 @@ class GaitSolver:
 
         def power_limit_problem(x_limit, model):  # (x, M_W / M_W0): minimise the limit itself
             x, fraction = x_limit[:-1], x_limit[-1]
-            model = dataclasses.replace(model, power_limit=fraction * model.power_limit)
-            equalities, inequalities = gait.scaled_constraints(gait.constraint_groups(
-                gait.simulate(x, model, biped, settings_), model, settings_))
+            _, equalities, inequalities = residuals(
+                x, dataclasses.replace(model, power_limit=fraction * model.power_limit))
             return fraction, equalities, inequalities
 
         self.power_problem = al.ConstrainedProblem(power_limit_problem)
@@ -258,8 +259,7 @@ class GaitSolver:
         for b in range(len(models)):
             jac_r = np.asarray(energy.derivatives(jnp.asarray(x0[b]), jax.tree.map(lambda a: a[b], batch))[6])
             scale = np.zeros((x0.shape[1] + 1,) * 2)
-            gauss_newton = sqp.gauss_newton_scale(jac_r, options.precondition or 1e-6)
-            scale[:-1, :-1] = np.eye(x0.shape[1]) if gauss_newton is None else gauss_newton
+            scale[:-1, :-1] = sqp.gauss_newton_scale(jac_r, options.precondition or SQP_PRECONDITION)
             scale[-1, -1] = POWER_LIMIT_STEP
             scales.append(scale)
         result = sqp.solve(self.power_problem, start, batch, options,
