@@ -44,15 +44,73 @@ def configure_jax(cache_dir: str | None = None) -> None:
 
 @contextlib.contextmanager
 def live_progress(quiet_prefixes: tuple[str, ...] = ()):
-    """A live status line with the elapsed time; yields ``progress(message)``, which also logs every
-    message that does not start with one of ``quiet_prefixes`` (frequent per-iteration lines)."""
+    """A live display: a status line (the latest message, or the program being compiled, with the
+    elapsed time) and one bar per counted stage (done of all, elapsed, estimated time left). Yields
+    ``progress(message, task=None)``; ``task`` = (stage, done, total) moves that stage's bar, and every
+    change of a count is logged (so a log piped to a file shows the counts too). Every message that
+    does not start with one of ``quiet_prefixes`` (frequent per-iteration lines) is logged as well.
+    Program names come from JAX's compile log (:func:`biped_jax.compile_profile.profile_compiles`,
+    which the command line runs around every command)."""
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, ProgressColumn, SpinnerColumn,
+                               TextColumn, TimeElapsedColumn, TimeRemainingColumn)
+    from rich.text import Text
+
+    class StageOnly(ProgressColumn):  # a column shown on the stages' bars, not on the status line
+        def __init__(self, column):
+            self.column = column
+            super().__init__()
+
+        def render(self, task):
+            return self.column.render(task) if task.total is not None else Text("")
+
     started = time.perf_counter()
-    with console.status("starting") as status:
-        def progress(message: str) -> None:
-            status.update(f"[{time.perf_counter() - started:5.0f} s] {message}")
-            if not (quiet_prefixes and message.startswith(quiet_prefixes)):
-                console.log(message)
-        yield progress
+    # the estimate of time left: the pace over the stage so far (problems take minutes, not seconds)
+    bars = Progress(SpinnerColumn(), TextColumn("{task.description}"),
+                    *map(StageOnly, (BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"),
+                                     TimeRemainingColumn())), console=console, speed_estimate_period=24 * 3600.0)
+    status = bars.add_task("starting", total=None)
+    stages: dict[str, int] = {}
+    latest = ["starting"]
+
+    def show(text: str) -> None:
+        bars.update(status, description=f"[{time.perf_counter() - started:5.0f} s] {text}")
+
+    def compiling(name: str | None) -> None:
+        show(latest[0] if name is None else f"compiling {name} (XLA; the first run of a program)")
+
+    def progress(message: str, task: tuple[str, int, int] | None = None) -> None:
+        latest[0] = message
+        show(message)
+        if task is not None:
+            stage, done, total = task
+            if stage not in stages:  # the stages run one after another: a new one ends those before
+                for earlier in stages.values():
+                    bars.update(earlier, completed=bars.tasks[earlier].total)
+                stages[stage] = bars.add_task(stage, total=total)
+            before = bars.tasks[stages[stage]].completed
+            bars.update(stages[stage], completed=done, total=total)
+            if done != before:
+                left = bars.tasks[stages[stage]].time_remaining
+                console.log(f"{stage}: {done} of {total} done" + ("" if left is None or done >= total
+                                                                  else f", about {left / 60:.1f} min left"))
+        if not (quiet_prefixes and message.startswith(quiet_prefixes)):
+            console.log(message)
+
+    listeners.append(compiling)
+    try:
+        with bars:
+            yield progress
+    finally:
+        listeners.remove(compiling)
+
+
+#: Who hears of compilations (the live display while one is open): see :func:`_compile_listener`.
+listeners: list = []
+
+
+def _compile_listener(name: str | None) -> None:
+    for listener in listeners:
+        listener(name)
 
 
 def _step_report(mass_class: str, gait) -> tuple[dict, dict]:
@@ -421,12 +479,11 @@ def main(argv: list[str] | None = None) -> int:
         with outputs.run_manifest(args.out, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv)),
                                   resume=getattr(args, "resume", False)):
             with _user_stream():
-                if not args.profile_compile:
-                    return _run(args)
                 from biped_jax.compile_profile import profile_compiles
-                with profile_compiles() as profile:
+                with profile_compiles(_compile_listener) as profile:  # names what is compiling
                     status = _run(args)
-                _report_compiles(profile.summary(), args.out)
+                if args.profile_compile:
+                    _report_compiles(profile.summary(), args.out)
                 return status
     except KeyboardInterrupt:
         listed = outputs.read_manifest(args.out)

@@ -13,7 +13,8 @@ import contextlib
 import logging
 import re
 
-_LOGGERS = ("jax._src.dispatch", "jax._src.compiler")
+_LOGGERS = ("jax._src.dispatch", "jax._src.compiler", "jax._src.interpreters.pxla")
+_STARTED = re.compile(r"Compiling (?P<name>\S+) with global shapes")
 _FINISHED = re.compile(r"Finished XLA compilation of (?P<name>.+) in (?P<seconds>[0-9.eE+-]+) sec")
 _HIT = re.compile(r"Persistent compilation cache hit for '(?P<name>[^']+)'")
 
@@ -25,15 +26,23 @@ def _key(name: str) -> str:
 
 class CompileProfile(logging.Handler):
     """The compilations seen: ``events``, one dict per backend compilation (name, seconds, cache "hit"
-    when it came from the persistent cache, else "compiled")."""
+    when it came from the persistent cache, else "compiled"). ``listener(name)``, when given, hears the
+    name of each program as its lowering starts (before the compiler or the cache) and None when it is
+    done: what a progress display shows as "compiling"."""
 
-    def __init__(self):
+    def __init__(self, listener=None):
         super().__init__(level=logging.DEBUG)
         self.events: list[dict] = []
         self._hits: set[str] = set()  # programs whose cache hit was logged, awaiting their "Finished" line
+        self.listener = listener
 
     def emit(self, record: logging.LogRecord) -> None:
         message = record.getMessage()
+        started = _STARTED.search(message)
+        if started:
+            if self.listener:
+                self.listener(started["name"])
+            return
         hit = _HIT.search(message)
         if hit:
             self._hits.add(_key(hit["name"]))
@@ -45,6 +54,8 @@ class CompileProfile(logging.Handler):
             self._hits.discard(key)
             self.events.append({"name": done["name"], "seconds": float(done["seconds"]),
                                 "cache": "hit" if cached else "compiled"})
+            if self.listener:
+                self.listener(None)
 
     def summary(self) -> dict:
         """Per distinct program: how often it was compiled or loaded, and the seconds; and the totals."""
@@ -60,9 +71,10 @@ class CompileProfile(logging.Handler):
 
 
 @contextlib.contextmanager
-def profile_compiles():
-    """Yields a :class:`CompileProfile` that records the block's compilations (nothing is printed)."""
-    profile = CompileProfile()
+def profile_compiles(listener=None):
+    """Yields a :class:`CompileProfile` that records the block's compilations (nothing is printed;
+    ``listener`` as there)."""
+    profile = CompileProfile(listener)
     saved = []
     for name in _LOGGERS:
         logger = logging.getLogger(name)

@@ -200,12 +200,13 @@ class GaitSolver:
         other.options = options
         return other
 
-    def _sqp_compiled(self, kind: str, step: float) -> sqp.CompiledSQP:
+    def _sqp_compiled(self, kind: str, options: sqp.SQPOptions) -> sqp.CompiledSQP:
         """SLSQP's compiled functions of the energy ("energy") or power-limit ("power") problem."""
-        if (kind, step) not in self._compiled_sqp:
+        key = (kind, options.step, options.sparse)
+        if key not in self._compiled_sqp:
             problem = self.problem if kind == "energy" else self.power_problem
-            self._compiled_sqp[kind, step] = sqp.compile_problem(problem, step)
-        return self._compiled_sqp[kind, step]
+            self._compiled_sqp[key] = sqp.compile_problem(problem, options.step, options.sparse)
+        return self._compiled_sqp[key]
 
     @staticmethod
     def _sqp_progress(progress, names):
@@ -220,7 +221,7 @@ class GaitSolver:
     def _solve_batch(self, x0, batch, progress, names):
         if isinstance(self.options, sqp.SQPOptions):
             return sqp.solve(self.problem, x0, batch, self.options,
-                             compiled=self._sqp_compiled("energy", self.options.step),
+                             compiled=self._sqp_compiled("energy", self.options),
                              progress=self._sqp_progress(progress, names))
         return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
@@ -248,13 +249,16 @@ class GaitSolver:
         ``refinement["solve_grid_limit_W"]``) and the gait's largest joint power on the refinement
         grid (the former alone for a solver without the refinement check), so that its status reads
         whether it is feasible (and grid independent) there; ``cost``
-        is that gait's J (not minimised). Uses this solver's SLSQP options (SQP's defaults with the
-        augmented Lagrangian's)."""
-        options = self.options if isinstance(self.options, sqp.SQPOptions) else sqp.SQPOptions()
+        is that gait's J (not minimised). SLSQP only: a solver with augmented-Lagrangian options raises
+        TypeError (``solver.using(SQPOptions(...))`` makes one sharing the compiled rollouts)."""
+        options = self.options
+        if not isinstance(options, sqp.SQPOptions):
+            raise TypeError("minimise_power_limit runs SLSQP: use solver.using(sqp.SQPOptions(...)), got options "
+                            f"of type {type(options).__name__}")
         batch = stack_tree(models)
         x0 = np.asarray(x0, dtype=float)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
-        energy = self._sqp_compiled("energy", options.step)
+        energy = self._sqp_compiled("energy", options)
         scales = []
         for b in range(len(models)):
             jac_r = np.asarray(energy.derivatives(jnp.asarray(x0[b]), jax.tree.map(lambda a: a[b], batch))[6])
@@ -263,7 +267,7 @@ class GaitSolver:
             scale[-1, -1] = POWER_LIMIT_STEP
             scales.append(scale)
         result = sqp.solve(self.power_problem, start, batch, options,
-                           compiled=self._sqp_compiled("power", options.step),
+                           compiled=self._sqp_compiled("power", options),
                            progress=self._sqp_progress(progress, names), scales=np.stack(scales))
         x = result.x[:, :-1]
         solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
@@ -272,7 +276,8 @@ class GaitSolver:
             fine = self._simulate_refined(jnp.asarray(x), batch)
             limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
         at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
-        cost = np.array([float(energy.value(jnp.asarray(x[b]), m)[0]) for b, m in enumerate(at_limit)])
+        cost = np.array([float(energy.value(jnp.asarray(x[b]), jax.tree.map(lambda a: a[b], batch))[0])
+                         for b in range(len(models))])  # J does not depend on the limit
         solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost))
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)

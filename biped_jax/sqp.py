@@ -19,6 +19,7 @@ basin (J = 4.146) and never let it terminate; central ones are good to about 10 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Callable
 
@@ -57,6 +58,8 @@ class SQPOptions:
         by default does not test stationarity either: SLSQP's quasi-Newton tail creeps for hundreds of
         iterations at the 1e-5 level, and its multipliers there leave |grad L| at 1e-3 to 1e-2; the
         stationarity is still reported). 0 disables it.
+      sparse: colour the columns of the central differences by the problem's sparsity
+        (:class:`CompiledSQP`); False differences every column alone (2n + 1 rollouts).
     """
 
     tolerance: float = 1e-5
@@ -68,43 +71,143 @@ class SQPOptions:
     precondition: float | None = 1e-6
     acceptable_change: float = 1e-6
     acceptable_iterations: int = 10
+    sparse: bool = True
 
 
-@dataclasses.dataclass(frozen=True)
+#: Colour counts are padded to a multiple of this, so that problems of one shape whose sparsity
+#: patterns differ slightly still share one compiled derivative program.
+COLOUR_PADDING = 8
+
+
 class CompiledSQP:
-    """The two compiled functions of one problem (one problem at a time, no batch dimension):
+    """The compiled functions of one problem (one problem at a time, no batch dimension):
     ``value(x, params) -> (f, h, g)`` and ``derivatives(x, params) -> (f, h, g, grad f, jac h, jac g,
-    jac r)``, jac r the residuals' Jacobian (an empty (0, n) array for a problem without residuals)."""
+    jac r)``, jac r the residuals' Jacobian (an empty (0, n) array for a problem without residuals).
 
-    value: Callable
-    derivatives: Callable
+    The derivatives are central differences. With ``sparse`` (the default), columns that reach no
+    output in common are perturbed together (Curtis, Powell and Reid, On the estimation of sparse
+    Jacobian matrices, IMA J. Appl. Math. 13, 1974; SciPy's ``approx_derivative`` with ``sparsity``
+    does the same): the gait's outputs are local in time (a B-spline control point moves four knot
+    spans, a shooting node one segment), so its 201 columns in 32 knot spans need 27 colours, 55
+    rollouts instead of 401 (0.59 s -> about 0.08 s a Jacobian on the 2-core CPU). Every row is still
+    differenced along one column only, so the result equals the dense differences to rounding. The
+    pattern (which outputs each column reaches) is probed once, at the first point asked for, by
+    perturbing each column alone in the single-point program (:func:`sparsity_pattern`); it is a
+    property of the problem's structure, not of the point (the gait has no branches that switch a
+    dependence on or off; a test compares with dense differences at other points and designs). The
+    objective's row is left out when it is a sum of squared residuals: grad f = 2 J_r^T r.
+    """
+
+    def __init__(self, problem: al.ConstrainedProblem, step: float = SQPOptions.step, sparse: bool = True):
+        self.problem, self.step, self.sparse = problem, step, sparse
+        self._outputs = jax.jit(functools.partial(_outputs, problem))
+        self._dense = jax.jit(functools.partial(_dense_derivatives, problem, step))
+        self._coloured = jax.jit(functools.partial(_coloured_derivatives, problem, step))
+        self.colouring: tuple | None = None  # (directions (C, n), colour of each column (n,), pattern (m, n))
+
+    def value(self, x, params):
+        """(f, h, g) at x."""
+        return self._outputs(x, params)[:3]
+
+    def derivatives(self, x, params):
+        """(f, h, g, grad f, jac h, jac g, jac r) at x by central differences."""
+        if not self.sparse:
+            return self._dense(x, params)
+        if self.colouring is None:
+            pattern = sparsity_pattern(self._outputs, np.asarray(x, dtype=float), params,
+                                       self.problem.residuals is not None)
+            colour = column_colours(pattern)
+            count = -(-(colour.max(initial=-1) + 1) // COLOUR_PADDING) * COLOUR_PADDING
+            directions = (np.arange(count)[:, None] == colour[None]).astype(float)
+            self.colouring = (jnp.asarray(directions), jnp.asarray(colour), jnp.asarray(pattern))
+        return self._coloured(x, params, *self.colouring)
 
 
-def compile_problem(problem: al.ConstrainedProblem, step: float = SQPOptions.step) -> CompiledSQP:
-    """Jitted value and central-difference derivatives of ``problem`` (compiled on first call): one
-    vmapped rollout of the 2n + 1 points gives f's, h's, g's and (with residuals) r's derivatives."""
-    value = jax.jit(problem.evaluate)
+def compile_problem(problem: al.ConstrainedProblem, step: float = SQPOptions.step,
+                    sparse: bool = True) -> CompiledSQP:
+    """Value and central-difference derivatives of ``problem``, compiled on first call (see
+    :class:`CompiledSQP`)."""
+    return CompiledSQP(problem, step, sparse)
 
-    def evaluate_with_residuals(x, params):
-        if problem.residuals is None:
-            f, h, g = problem.evaluate(x, params)
-            return f, h, g, jnp.zeros(0)
-        r, h, g = problem.residuals(x, params)
-        return r @ r, h, g, r
-    evaluate_points = jax.vmap(evaluate_with_residuals, in_axes=(0, None))
 
-    @jax.jit
-    def derivatives(x, params):
-        steps = step * jnp.maximum(1.0, jnp.abs(x))
-        size = x.shape[-1]
-        points = jnp.concatenate([x[None], x[None] + jnp.diag(steps), x[None] - jnp.diag(steps)])
-        f, h, g, r = evaluate_points(points, params)
-        width = 2 * steps
+def _outputs(problem: al.ConstrainedProblem, x, params):
+    """(f, h, g, r) at one point; r empty for a problem without residuals."""
+    if problem.residuals is None:
+        f, h, g = problem.evaluate(x, params)
+        return f, h, g, jnp.zeros(0, x.dtype)
+    r, h, g = problem.residuals(x, params)
+    return r @ r, h, g, r
 
-        def slope(v):  # central differences, (outputs, n)
-            return ((v[1:size + 1] - v[size + 1:]) / width.reshape((-1,) + (1,) * (v.ndim - 1))).T
-        return f[0], h[0], g[0], slope(f), slope(h), slope(g), slope(r)
-    return CompiledSQP(value, derivatives)
+
+def _steps(step, x):
+    return step * jnp.maximum(1.0, jnp.abs(x))
+
+
+def _dense_derivatives(problem, step, x, params):
+    """One vmapped rollout of the 2n + 1 points x, x +- step_i e_i."""
+    steps = _steps(step, x)
+    size = x.shape[-1]
+    points = jnp.concatenate([x[None], x[None] + jnp.diag(steps), x[None] - jnp.diag(steps)])
+    f, h, g, r = jax.vmap(functools.partial(_outputs, problem), in_axes=(0, None))(points, params)
+    width = 2 * steps
+
+    def slope(v):  # central differences, (outputs, n)
+        return ((v[1:size + 1] - v[size + 1:]) / width.reshape((-1,) + (1,) * (v.ndim - 1))).T
+    return f[0], h[0], g[0], slope(f), slope(h), slope(g), slope(r)
+
+
+def _coloured_derivatives(problem, step, x, params, directions, colour, pattern):
+    """One vmapped rollout of the 2C + 1 points x, x +- (step_i over the columns i of colour c);
+    row k of column i is read from colour(i)'s difference where the pattern says k depends on i.
+    ``pattern`` rows: r, then h, then g, then f (f's row only for a problem without residuals)."""
+    steps = _steps(step, x)
+    points = jnp.concatenate([x[None], x[None] + directions * steps, x[None] - directions * steps])
+    f, h, g, r = jax.vmap(functools.partial(_outputs, problem), in_axes=(0, None))(points, params)
+    count = directions.shape[0]
+    with_objective = problem.residuals is None
+    rows = jnp.concatenate([r, h, g] + ([f[:, None]] if with_objective else []), axis=1)  # (2C + 1, m)
+    differences = (rows[1:count + 1] - rows[count + 1:])                                   # (C, m)
+    jacobian = jnp.where(pattern, differences[colour].T / (2 * steps), 0.0)               # (m, n)
+    jac_r, jac_h, jac_g = jnp.split(jacobian[:r.shape[1] + h.shape[1] + g.shape[1]],
+                                    [r.shape[1], r.shape[1] + h.shape[1]])
+    grad = jacobian[-1] if with_objective else 2 * jac_r.T @ r[0]
+    return f[0], h[0], g[0], grad, jac_h, jac_g, jac_r
+
+
+def sparsity_pattern(outputs: Callable, x: np.ndarray, params, has_residuals: bool,
+                     probe: float = 1e-3) -> np.ndarray:
+    """Which outputs each column of x reaches, shape (m, n) bool, rows as in the coloured derivatives
+    (r, h, g, then f when there are no residuals): column i perturbed alone by ``probe`` max(1, |x_i|)
+    at x and at a second point (x moved by a random 10 ``probe`` in every column, so that a dependence
+    whose slope vanishes at x still shows), in the compiled single-point program; an output that
+    changes at all, bit for bit, depends on the column."""
+    def rows(point):
+        f, h, g, r = map(np.asarray, outputs(jnp.asarray(point), params))
+        return np.concatenate([r, h, g] + ([np.atleast_1d(f)] if not has_residuals else []))
+    scale = probe * np.maximum(1.0, np.abs(x))
+    second = x + 10 * scale * np.random.default_rng(0).uniform(-1, 1, x.size)
+    pattern = None
+    for base in (x, second):
+        centre = rows(base)
+        columns = [rows(base + scale[i] * np.eye(x.size)[i]) != centre for i in range(x.size)]
+        found = np.stack(columns, axis=1)
+        pattern = found if pattern is None else pattern | found
+    return pattern
+
+
+def column_colours(pattern: np.ndarray) -> np.ndarray:
+    """Greedy colouring of the columns, densest first: columns of one colour reach no row in common.
+    Returns each column's colour, shape (n,) int."""
+    colour = np.full(pattern.shape[1], -1)
+    reached: list[np.ndarray] = []  # per colour, the rows its columns reach
+    for column in np.argsort(-pattern.sum(axis=0), kind="stable"):
+        rows = pattern[:, column]
+        free = next((c for c, used in enumerate(reached) if not (used & rows).any()), len(reached))
+        if free == len(reached):
+            reached.append(np.zeros_like(rows))
+        reached[free] |= rows
+        colour[column] = free
+    return colour
 
 
 def _to_numpy(a):
@@ -257,7 +360,7 @@ def solve(problem: al.ConstrainedProblem, x0, params, options: SQPOptions = SQPO
     iterations, ``gradients`` counts function evaluations, ``history`` one row per SLSQP iteration).
     """
     started = time.perf_counter()
-    compiled = compiled or compile_problem(problem, options.step)
+    compiled = compiled or compile_problem(problem, options.step, options.sparse)
     x0 = np.asarray(x0, dtype=float)
     rows = []
     for b in range(x0.shape[0]):

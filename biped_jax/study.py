@@ -36,14 +36,14 @@ def _models(rows, power_limits=None, step_length: float = 0.2):
     return [gait.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
 
 
-def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution],
+def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], models: list[gait.GaitModel],
                          progress: Callable[[int, dict], None] | None = None,
                          coarse: GaitSolver | None = None) -> list[dict]:
     """The smallest power limit M_W per model (all models in one call): SLSQP minimising the limit
     itself over the gait (:meth:`GaitSolver.minimise_power_limit`), started from each model's converged
-    gait at its own limit; with ``coarse``, first in its space (the gaits carried there by least
-    squares), then from there in ``solver``'s (continuation in the space: an iteration in the 4x
-    coarser space costs a tenth).
+    gait at its own limit (``solutions[b]`` solved for ``models[b]``); with ``coarse``, first in its
+    space (the gaits carried there by least squares), then from there in ``solver``'s (continuation in
+    the space: an iteration in the 4x coarser space costs a tenth).
 
     A gait whose SLSQP stopped at its iteration limit still gives a limit (an upper bound, feasible on
     both grids, with that status); a gait infeasible on either grid gives none.
@@ -58,8 +58,7 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution],
     found = {}
     if usable:
         rows = [solutions[b] for b in usable]
-        models = [gait.gait_model("12kg" if s.mass_kg < 15 else "18kg", s.speed_mps, s.power_limit_W,
-                                  s.step_length_m) for s in rows]
+        models = [models[b] for b in usable]
         names = [s.name for s in rows]
         x0 = np.stack([s.x for s in rows])
         if coarse is not None:
@@ -213,40 +212,47 @@ def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS, method: str = "s
 
 
 def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
-              progress: Callable[[str], None] | None = None, resume: bool = False, method: str = "sqp") -> dict:
+              progress: Callable[..., None] | None = None, resume: bool = False, method: str = "sqp") -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
     space: :func:`biped_jax.gait_solver.solve_multistart`), M1-M4 at 20 W (warm-started)
     and the minimal power limits; writes
     results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
     stage is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes the stages found there for these
-    settings instead of solving them again."""
+    settings instead of solving them again. ``progress(message, task=None)`` hears every iteration;
+    ``task`` = (stage, problems done, problems in the stage) counts the work (:func:`biped_jax.cli.live_progress`)."""
     solvers = study_solvers(settings, method)
     solver, coarse, families = solvers.fine, solvers.coarse, solvers.families
-    say = progress or (lambda message: None)
+    say = progress or (lambda message, task=None: None)
     out.mkdir(parents=True, exist_ok=True)
     key = {"settings": dataclasses.asdict(settings), "method": method}
     names = [r.name for r in PAPER_MODELS]
 
     def report(label):
-        if method == "sqp":
+        if method == "sqp":  # the stage's count: problems done (one SLSQP solve after another)
             return lambda i, row: say(
                 f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at "
                 f"most {solver.options.max_iterations}, J = {row['cost'][0]:.4f}, scaled violation "
-                f"{row['violation'][0]:.1e}")
+                f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
         return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {solver.options.max_outer}, "
                                   f"largest scaled violation {np.max(row['violation']):.1e} (done below "
-                                  f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}")
+                                  f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}",
+                                  task=(label, i + 1, solver.options.max_outer))
+
+    def done(label, result):
+        say(f"{label}: done", task=(label, len(result), len(result)))
+        return result
 
     say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
         f"spans), then the best in {settings.spans} spans ({'SLSQP' if method == 'sqp' else 'augmented Lagrangian'})")
-    solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
-        solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
-        progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row)), resume, say)
+    solutions = outputs.stage(out, "paper_models", key, lambda: done(
+        "M1-M4 refined space", gait_solver.solve_multistart(
+            solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
+            progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row))), resume, say)
     say("M1-M4 at M_W = 20 W")
-    at_20 = outputs.stage(out, "at_20W", key, lambda: solver.solve(
+    at_20 = outputs.stage(out, "at_20W", key, lambda: done("20 W", solver.solve(
         names, _models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),
-        progress=report("20 W")), resume, say)
+        progress=report("20 W"))), resume, say)
     # A gait feasible at 20 W is feasible at every looser limit: where it costs less than the solution
     # found at the paper's limit, that solution was a worse local optimum; restart from it. (Cheaper by
     # more than 1e-4 relative: a solve ended on acceptable termination is settled to about 1e-6-1e-5.)
@@ -255,16 +261,20 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     if better:
         say("restarting " + ", ".join(names[b] for b in better) + " from their cheaper 20 W gaits")
         starts = jnp.stack([jnp.asarray(at_20[b].x if b in better else s.x) for b, s in enumerate(solutions)])
-        restarted = outputs.stage(out, "restart", key, lambda: solver.solve(
-            names, _models(PAPER_MODELS), x0=starts, progress=report("restart")), resume, say)
+        restarted = outputs.stage(out, "restart", key, lambda: done("restart", solver.solve(
+            names, _models(PAPER_MODELS), x0=starts, progress=report("restart"))), resume, say)
         solutions = [r if (b in better and r.status == al.CONVERGED and r.cost < s.cost) else s
                      for b, (s, r) in enumerate(zip(solutions, restarted))]
     say("smallest feasible power limit per model")
-    minimal = outputs.stage(out, "minimal_power_limits", key, lambda: minimal_power_limits(
-        solvers.power, solutions, coarse=solvers.coarse_power, progress=lambda i, row: say(
-            f"smallest power limit ({row.get('space', 'study')} space): {row['name']} ({row['problem'] + 1} of "
-            f"{row['problems']}), SLSQP iteration {i} of at most {solvers.power.options.max_iterations}, "
-            f"M_W / start = {row['cost'][0]:.4f}, scaled violation {row['violation'][0]:.1e}")), resume, say)
+    def power_report(i, row):
+        label = f"smallest power limit ({row.get('space', 'study')} space)"
+        say(f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at most "
+            f"{solvers.power.options.max_iterations}, M_W / start = {row['cost'][0]:.4f}, scaled violation "
+            f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
+    minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
+        "smallest power limit (study space)", minimal_power_limits(
+            solvers.power, solutions, _models(PAPER_MODELS), coarse=solvers.coarse_power, progress=power_report)),
+        resume, say)
 
     records = []
     for solution, minimum in zip(solutions, minimal):
