@@ -228,13 +228,20 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, settings, resume: bool = False, method: str = "sqp") -> dict:
-    """The paper's study with a live progress line; see :func:`biped_jax.study.run_study`."""
+def reproduce(out: Path, settings, resume: bool = False, method: str = "sqp", quick: bool = False) -> dict:
+    """The paper's study with a live progress display; see :func:`biped_jax.study.run_study`. ``quick``:
+    the coarse look of :data:`biped_jax.study.QUICK_SETTINGS` (``settings`` ignored), every file stamped."""
     from biped_jax import study
 
     started = time.perf_counter()
-    with live_progress(("M1-M4", "20 W:", "restart:", "smallest power limit:")) as progress:
-        results = study.run_study(out, settings, progress, resume=resume, method=method)
+    stamp = outputs.stamped(study.QUICK_STAMP) if quick else contextlib.nullcontext()
+    with live_progress(("M1-M4", "20 W:", "restart:", "smallest power limit")) as progress, stamp:
+        if quick:
+            console.log(study.QUICK_STAMP)
+            results = study.run_study(out, study.QUICK_SETTINGS, progress, resume=resume, method=method,
+                                      families=study.QUICK_FAMILIES)
+        else:
+            results = study.run_study(out, settings, progress, resume=resume, method=method)
     for record in results["models"]:
         check = record["refinement"]
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -417,6 +424,9 @@ def _parser() -> argparse.ArgumentParser:
     run = commands.add_parser("reproduce", help="run the paper's study and write results")
     _out_argument(run)
     _space_arguments(run, substeps=STUDY_SUBSTEPS, segments=True, spans=STUDY_SPANS)
+    run.add_argument("--quick", action="store_true",
+                     help="a coarse first look in a few minutes (8 knot spans, 3 start families; overrides "
+                          "--spans/--substeps/--segments); every file it writes says so")
     run.add_argument("--solver", choices=("sqp", "al"), default="sqp",
                      help="sqp: SLSQP from every start family (default); al: the batched augmented Lagrangian")
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
@@ -590,7 +600,7 @@ def _run(args) -> int:
     if args.command == "codesign":
         codesign(args.out, settings, args.iterations, args.resume)
         return 0
-    reproduce(args.out, settings, args.resume, args.solver)
+    reproduce(args.out, settings, args.resume, args.solver, args.quick)
     return 0
 
 

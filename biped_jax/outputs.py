@@ -31,6 +31,24 @@ MANIFEST = "manifest.json"
 #: Subfolder that receives an earlier run's files when a new run starts in the same folder.
 PREVIOUS = "previous"
 
+_stamps: list[str] = []  # the innermost :func:`stamped` block's text is written into every result file
+
+
+@contextlib.contextmanager
+def stamped(text: str):
+    """Every result file written in the block says ``text`` (e.g. that it is a quick, coarse look and
+    not the study): JSON objects get a first key "stamp", markdown starts with it in bold, figures
+    carry it in red across the top, ``.npz`` files get an array "stamp", and the run's manifest records
+    it."""
+    _stamps.append(text)
+    if _current is not None:
+        _current.record["stamp"] = text
+        _current.write()
+    try:
+        yield
+    finally:
+        _stamps.pop()
+
 
 def check_output_dir(path: Path) -> Path:
     """Refuses, before any computing, an output folder that cannot be written: an existing file, a
@@ -89,7 +107,9 @@ def _atomic(path: Path, suffix: str, listed: bool = True):
 
 
 def write_text(path: Path, text: str) -> Path:
-    """Writes ``text`` to ``path`` atomically."""
+    """Writes ``text`` to ``path`` atomically (markdown with the :func:`stamped` text first)."""
+    if _stamps and Path(path).suffix == ".md":
+        text = f"**{_stamps[-1]}**\n\n{text}"
     with _atomic(path, ".tmp") as temporary:
         temporary.write_text(text)
     return Path(path)
@@ -103,13 +123,18 @@ def write_bytes(path: Path, data: bytes) -> Path:
 
 
 def write_json(path: Path, record: Any) -> Path:
-    """Writes ``record`` as strict JSON (see :func:`json_text`) atomically."""
+    """Writes ``record`` as strict JSON (see :func:`json_text`) atomically (an object with the
+    :func:`stamped` text as its first key "stamp")."""
+    if _stamps and isinstance(record, dict):
+        record = {"stamp": _stamps[-1], **record}
     return write_text(path, json_text(record))
 
 
 def save_figure(figure, path: Path, dpi: int = 110) -> Path:
     """Saves a matplotlib figure atomically (the format from ``path``'s suffix)."""
     path = Path(path)
+    if _stamps:
+        figure.text(0.5, 0.995, _stamps[-1], color="red", ha="center", va="top", fontsize=9)
     with _atomic(path, path.suffix) as temporary:
         figure.savefig(temporary, dpi=dpi, format=path.suffix.lstrip("."))
     return path
@@ -118,6 +143,8 @@ def save_figure(figure, path: Path, dpi: int = 110) -> Path:
 def save_npz(path: Path, compressed: bool = False, **arrays) -> Path:
     """Saves numpy arrays to an ``.npz`` file atomically."""
     import numpy as np
+    if _stamps:
+        arrays = {"stamp": np.array(_stamps[-1]), **arrays}
     with _atomic(Path(path), ".npz") as temporary:
         (np.savez_compressed if compressed else np.savez)(temporary, **arrays)
     return Path(path)

@@ -61,17 +61,19 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
         models = [models[b] for b in usable]
         names = [s.name for s in rows]
         x0 = np.stack([s.x for s in rows])
+
+        def tagged(stage):
+            return (lambda i, row: progress(i, {**row, "space": stage})) if progress else None
         if coarse is not None:
-            tagged = (lambda i, row: progress(i, {**row, "space": "coarse"})) if progress else None
             carried = np.stack([gait.project(s.x, solver.settings, coarse.settings, s.trajectory) for s in rows])
-            first = coarse.minimise_power_limit(names, models, carried, progress=tagged)
+            first = coarse.minimise_power_limit(names, models, carried, progress=tagged("coarse space"))
             # from the coarse space's gait and limit (2 % above it: the carried gait is close, not equal)
             carried_on = [c.max_violation <= gait_solver.VIOLATION_TOLERANCE for c in first]
             x0 = np.stack([gait.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
                            for c, s, ok in zip(first, rows, carried_on)])
             models = [dataclasses.replace(m, power_limit=jnp.asarray(1.02 * c.power_limit_W)) if ok else m
                       for m, c, ok in zip(models, first, carried_on)]
-        minima = solver.minimise_power_limit(names, models, x0, progress=progress)
+        minima = solver.minimise_power_limit(names, models, x0, progress=tagged("study space"))
         found = dict(zip(usable, minima))
     records = []
     for b, solution in enumerate(solutions):
@@ -166,11 +168,18 @@ STUDY_SETTINGS = gait.GaitSettings(spans=32, segments=32, substeps=6)
 #: The study's start families: every heuristic family, the flexed-impact ones included.
 STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
 
+#: ``biped-jax reproduce --quick``: a first look in a few minutes, not the study: 8 knot spans (the
+#: starts in 2), three start families; every file it writes says so (:data:`QUICK_STAMP`).
+QUICK_SETTINGS = gait.GaitSettings(spans=8, segments=8, substeps=6)
+QUICK_FAMILIES = (gait.START_FAMILIES[1], gait.IMPACT_FAMILIES[0], gait.IMPACT_FAMILIES[1])
+QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start families; coarse, not the "
+               "study's result")
+
 #: SLSQP in the coarse space (choosing the start per model) and in the study's space.
 COARSE_SQP_OPTIONS = sqp.SQPOptions(max_iterations=200)
 SQP_OPTIONS = sqp.SQPOptions()
 #: SLSQP minimising the power limit (:func:`minimal_power_limits`).
-POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400)
+POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400, stall_iterations=50)
 
 #: The study's solvers: "sqp" (SLSQP, the default) or "al" (the batched augmented Lagrangian of the
 #: first two generations, kept for comparison and for batches of designs).
@@ -212,20 +221,22 @@ def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS, method: str = "s
 
 
 def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
-              progress: Callable[..., None] | None = None, resume: bool = False, method: str = "sqp") -> dict:
+              progress: Callable[..., None] | None = None, resume: bool = False, method: str = "sqp",
+              families: tuple | None = None) -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
     space: :func:`biped_jax.gait_solver.solve_multistart`), M1-M4 at 20 W (warm-started)
     and the minimal power limits; writes
     results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
     stage is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes the stages found there for these
-    settings instead of solving them again. ``progress(message, task=None)`` hears every iteration;
+    settings instead of solving them again. ``families`` replaces the method's start families.
+    ``progress(message, task=None)`` hears every iteration;
     ``task`` = (stage, problems done, problems in the stage) counts the work (:func:`biped_jax.cli.live_progress`)."""
     solvers = study_solvers(settings, method)
-    solver, coarse, families = solvers.fine, solvers.coarse, solvers.families
+    solver, coarse, families = solvers.fine, solvers.coarse, families or solvers.families
     say = progress or (lambda message, task=None: None)
     out.mkdir(parents=True, exist_ok=True)
-    key = {"settings": dataclasses.asdict(settings), "method": method}
+    key = {"settings": dataclasses.asdict(settings), "method": method, "families": [f.name for f in families]}
     names = [r.name for r in PAPER_MODELS]
 
     def report(label):
@@ -249,7 +260,7 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
         "M1-M4 refined space", gait_solver.solve_multistart(
             solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
             progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row))), resume, say)
-    say("M1-M4 at M_W = 20 W")
+    say("the four models at M_W = 20 W")
     at_20 = outputs.stage(out, "at_20W", key, lambda: done("20 W", solver.solve(
         names, _models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),
         progress=report("20 W"))), resume, say)
@@ -267,7 +278,7 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
                      for b, (s, r) in enumerate(zip(solutions, restarted))]
     say("smallest feasible power limit per model")
     def power_report(i, row):
-        label = f"smallest power limit ({row.get('space', 'study')} space)"
+        label = f"smallest power limit ({row.get('space', 'study space')})"
         say(f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at most "
             f"{solvers.power.options.max_iterations}, M_W / start = {row['cost'][0]:.4f}, scaled violation "
             f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))

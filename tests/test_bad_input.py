@@ -141,6 +141,30 @@ def test_json_is_strict_and_missing_values_are_null(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]  # no temporary left behind
 
 
+def test_a_quick_look_says_so_in_every_file_it_writes(tmp_path):
+    """`reproduce --quick` runs its study inside outputs.stamped(QUICK_STAMP): JSON, markdown, the
+    figures, the npz and the manifest all carry the stamp; a file written after the block does not."""
+    import matplotlib
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+    stamp = "QUICK LOOK: a test"
+    with outputs.run_manifest(tmp_path, ["biped-jax", "reproduce", "--quick"]):
+        with outputs.stamped(stamp):
+            outputs.write_json(tmp_path / "results.json", {"models": []})
+            outputs.write_text(tmp_path / "tables.md", "# Tables\n")
+            outputs.save_npz(tmp_path / "trajectories.npz", M1_t=np.zeros(3))
+            figure = plt.figure()
+            outputs.save_figure(figure, tmp_path / "fig.png")
+            assert stamp in [text.get_text() for text in figure.texts]
+            plt.close(figure)
+        outputs.write_json(tmp_path / "later.json", {"models": []})
+    assert json.loads((tmp_path / "results.json").read_text()) == {"stamp": stamp, "models": []}
+    assert (tmp_path / "tables.md").read_text().startswith(f"**{stamp}**")
+    assert str(outputs.read_npz(tmp_path / "trajectories.npz")["stamp"]) == stamp
+    assert outputs.read_manifest(tmp_path)["stamp"] == stamp
+    assert "stamp" not in json.loads((tmp_path / "later.json").read_text())
+
+
 def test_a_failed_write_leaves_the_old_file(tmp_path):
     path = outputs.write_json(tmp_path / "r.json", {"old": 1})
 

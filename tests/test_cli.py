@@ -15,6 +15,7 @@ def results(tmp_path_factory):
     return out, json.loads((out / "results.json").read_text())
 
 
+@pytest.mark.slow
 def test_compile_profile_lists_the_programs_the_command_compiled(results):
     out, _ = results
     profile = json.loads((out / "compile_profile.json").read_text())
@@ -98,6 +99,7 @@ def test_reproduce_writes_the_study(tmp_path):
     assert "| Max. (W) |" in (tmp_path / "tables.md").read_text()
 
 
+@pytest.mark.slow
 def test_donald_command_writes_its_report(tmp_path):
     assert cli.main(["donald", "--out", str(tmp_path), "--steps", "2"]) == 0
     report = json.loads((tmp_path / "donald.json").read_text())
@@ -116,6 +118,7 @@ def test_reproduce_defaults_are_the_study_settings():
     args = cli._parser().parse_args(["reproduce"])
     assert (args.spans, args.substeps) == (study.STUDY_SETTINGS.spans, study.STUDY_SETTINGS.substeps)
     assert cli.STUDY_SPANS == study.STUDY_SETTINGS.spans
+    assert not args.quick and cli._parser().parse_args(["reproduce", "--quick"]).quick
 
 
 def test_reproduce_rejects_bad_settings():

@@ -100,6 +100,7 @@ def test_start_state_and_first_sample_are_consistent(solver, heuristic):
     np.testing.assert_allclose(trajectory.ground_force[0], force, rtol=1e-9, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_integrator_and_quadrature_converge_at_fourth_order(biped12):
     """The same decision vector on grids 2, 4, 8, 16 steps per span against 64: the stance angle at
     touchdown and J converge at the 4th order of RK4 and Simpson (each halving divides the error by
@@ -175,6 +176,7 @@ def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solut
     assert solution.cost == pytest.approx(float(weights @ np.sum(np.asarray(trajectory.u) ** 2, axis=1)), rel=1e-9)
 
 
+@pytest.mark.slow
 def test_multistart_reports_the_spread_and_keeps_the_best(solver):
     """Four start families of M2 in one batch (the program the paper fixture compiled); the cheapest
     feasible one is kept and every start is listed."""
@@ -262,6 +264,7 @@ def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
                                    rtol=1e-7, atol=1e-8, err_msg=f"touchdown.{name}")
 
 
+@pytest.mark.slow
 def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_solution):
     """The gradient the optimiser follows (MJX autodiff of the augmented Lagrangian) against central
     differences of the same function evaluated with MuJoCo C."""

@@ -85,6 +85,7 @@ def m2_reference(short_solver):
     return x, model, settings, trajectory, humanoid.gait_reference(x, model, settings, trajectory)
 
 
+@pytest.mark.slow
 def test_reference_follows_the_simulated_gait(m2_reference):
     x, model, settings, tr, reference = m2_reference
     step_time = float(model.step_length / model.speed)

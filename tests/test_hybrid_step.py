@@ -76,6 +76,7 @@ def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout)
                                newton(trajectory.q[k], trajectory.qd[k], trajectory.qdd[k]), rtol=1e-10)
 
 
+@pytest.mark.slow
 def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(biped12):
     """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
     equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
@@ -263,6 +264,7 @@ def test_rollout_gradient_matches_central_finite_differences(biped12):
     np.testing.assert_allclose(analytic, finite, rtol=1e-6, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_swing_foot_and_ground_reaction_gradients_match_finite_differences(biped12):
     pinned = biped12.pinned
 

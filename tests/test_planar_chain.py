@@ -55,6 +55,7 @@ def test_every_quantity_equals_mjx(biped12, designed, seed):
                                data.site_xpos[jnp.array(site_ids)][:, jnp.array([0, 2])], atol=1e-14)
 
 
+@pytest.mark.slow
 def test_rollout_and_its_gradient_equal_mjx(biped12, rollout):
     """20 Euler steps of 1.8 ms (no damping: MJX's implicit damping would differ by O(dt^2)), and the
     gradient of a cost of the final state and the ground force with respect to the torques."""
@@ -83,6 +84,7 @@ def test_rollout_and_its_gradient_equal_mjx(biped12, rollout):
     np.testing.assert_allclose(gradient_chain, gradient_mjx, rtol=1e-9, atol=1e-10)
 
 
+@pytest.mark.slow
 def test_gait_rollout_is_the_same_with_either_dynamics(biped12):
     """The optimiser's rollout (prescribed joints, zero dynamics by RK4) from M2's heuristic start: same
     torques, states, ground force and touchdown with the chain as with MJX."""

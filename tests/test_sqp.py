@@ -57,6 +57,17 @@ def test_a_solve_ended_infeasible_returns_its_cheapest_feasible_iterate():
     np.testing.assert_allclose(full.x[0, 0], 1.0, atol=1e-6)
 
 
+def test_a_stall_is_infeasible_iterations_that_do_not_halve_the_violation():
+    """The early stop of the power-limit minimisation: only after ``stall_iterations`` infeasible
+    iterations in a row whose violation did not halve; off by default."""
+    options = sqp.SQPOptions(stall_iterations=3)
+    hovering = [(1.0, 4e-3, 0)] * 4  # (f, scaled violation, evaluations) per iteration
+    assert sqp._stalled(hovering, options) and not sqp._stalled(hovering, sqp.SQPOptions())
+    assert not sqp._stalled(hovering[:3], options)  # too few iterations to say
+    assert not sqp._stalled([(1.0, 4e-3, 0), (1.0, 3e-3, 0), (1.0, 2.5e-3, 0), (1.0, 1.9e-3, 0)], options)
+    assert not sqp._stalled(hovering[:3] + [(1.0, 1e-6, 0)], options)  # a feasible iterate in the window
+
+
 def _banded_problem(with_residuals: bool):
     """Outputs local in x (residual i reaches x_i and x_i+1) but for one equality coupling the ends:
     two colours whatever the size (odd and even columns), three with an objective reaching x_0..x_2."""
@@ -88,15 +99,16 @@ def test_coloured_differences_equal_the_exact_jacobian(with_residuals):
         np.testing.assert_allclose(jac_r, exact_r, rtol=1e-7, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_gait_derivatives_coloured_equal_dense():
     """The gait problem in 8 knot spans (8 shooting segments), with a catalogue motor's drives (the
     voltage rows and the Joule objective): the coloured central differences, probed on one design at
-    its heuristic start, equal the dense ones (every column alone) at another point and on another
-    design to rounding, and need half the rollouts or fewer (a quarter in the study's 32 spans)."""
+    its heuristic start, equal the dense ones (every column differenced alone, one point at a time
+    through the single-point program) at another point and on another design to rounding, and need
+    half the rollouts or fewer (a quarter in the study's 32 spans)."""
     settings = gait.GaitSettings(spans=8, segments=8, substeps=2)
     solver = GaitSolver(settings, check_refinement=False)
-    design = codesign.catalogue_design()
-    models = [codesign.gait_model(design, 0.555, 20.0),
+    models = [codesign.gait_model(codesign.catalogue_design(), 0.555, 20.0),
               codesign.gait_model(codesign.catalogue_design(mass_class="18kg"), 0.417, 25.0)]
     params = [jax.tree.map(lambda a: jnp.asarray(a, float), m) for m in models]
     x0 = gait.initial_guess(models[0], settings, solver.leg_length)
@@ -104,17 +116,23 @@ def test_gait_derivatives_coloured_equal_dense():
     coloured.derivatives(x0, params[0])
     colours = int(coloured.colouring[1].max()) + 1
     assert colours <= settings.size // 2, colours
-    x = x0 + 1e-2 * jnp.asarray(np.random.default_rng(4).standard_normal(settings.size))
-    dense = sqp.compile_problem(solver.problem, sparse=False)
+    x = np.asarray(x0) + 1e-2 * np.random.default_rng(4).standard_normal(settings.size)
+    steps = sqp.SQPOptions.step * np.maximum(1.0, np.abs(x))
+
+    def outputs(point, p):  # (f, h, g, r) as numpy, from the single-point program
+        return [np.atleast_1d(np.asarray(a)) for a in coloured._outputs(jnp.asarray(point), p)]
     for p in params:
-        found, want = coloured.derivatives(x, p), dense.derivatives(x, p)
-        for k in (0, 1, 2, 4, 5, 6):  # the values and the Jacobians of h, g and r
-            scale = max(float(np.max(np.abs(want[k]), initial=0.0)), 1.0)
-            np.testing.assert_allclose(found[k], want[k], rtol=0, atol=1e-9 * scale)
+        found = coloured.derivatives(jnp.asarray(x), p)
+        columns = [[(a - b) / (2 * h) for a, b in zip(outputs(x + h * e, p), outputs(x - h * e, p))]
+                   for h, e in zip(steps, np.eye(x.size))]
+        dense = [np.stack([column[k] for column in columns], axis=-1) for k in range(4)]  # f, h, g, r: (m, n)
+        for k, want in ((4, dense[1]), (5, dense[2]), (6, dense[3])):  # the Jacobians of h, g and r
+            np.testing.assert_allclose(found[k], want, rtol=0, atol=1e-8 * max(float(np.max(np.abs(want))), 1.0))
         # grad f: 2 J_r^T r beside f's own central difference (different truncation errors)
-        np.testing.assert_allclose(found[3], want[3], rtol=0, atol=1e-6 * float(np.max(np.abs(want[3]))))
+        np.testing.assert_allclose(found[3], dense[0][0], rtol=0, atol=1e-6 * float(np.max(np.abs(dense[0]))))
 
 
+@pytest.mark.slow
 def test_gait_solutions_are_kkt_points_and_fixed_points():
     """M2 at 20 W in a 2-span space from a straight-stance and a flexed-impact start: both end at KKT
     points (feasible in every group in its own unit, |grad f + J^T lambda| small with SLSQP's
