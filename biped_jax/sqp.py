@@ -58,10 +58,6 @@ class SQPOptions:
         by default does not test stationarity either: SLSQP's quasi-Newton tail creeps for hundreds of
         iterations at the 1e-5 level, and its multipliers there leave |grad L| at 1e-3 to 1e-2; the
         stationarity is still reported). 0 disables it.
-      stall_iterations: stop when that many iterations in a row were infeasible and the scaled
-        violation did not halve over them (the degenerate power-limit minimisation in 32 knot spans
-        hovered at 4e-3 for 350 iterations); the cheapest feasible iterate is then returned as an
-        upper bound (``iteration limit``). 0 (the default) never stops early this way.
       sparse: colour the columns of the central differences by the problem's sparsity
         (:class:`CompiledSQP`); False differences every column alone (2n + 1 rollouts).
     """
@@ -75,7 +71,6 @@ class SQPOptions:
     precondition: float | None = 1e-6
     acceptable_change: float = 1e-6
     acceptable_iterations: int = 10
-    stall_iterations: int = 0
     sparse: bool = True
 
 
@@ -267,8 +262,6 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
         if _acceptable(trace, options):
             acceptable[0] = True
             raise StopIteration
-        if _stalled(trace, options):
-            raise StopIteration
 
     def chain(jacobian):  # d/dz of a function of x
         return jacobian if scale is None else jacobian @ scale
@@ -327,15 +320,6 @@ def _acceptable(trace: list, options: SQPOptions) -> bool:
         return False
     costs = [row[0] for row in trace[-window - 1:]]
     return max(costs) - min(costs) <= options.acceptable_change * max(1.0, abs(costs[-1]))
-
-
-def _stalled(trace: list, options: SQPOptions) -> bool:
-    """Infeasible for the last ``stall_iterations`` iterations without halving the violation."""
-    window = options.stall_iterations
-    if window <= 0 or len(trace) <= window:
-        return False
-    recent = [row[1] for row in trace[-window:]]
-    return min(recent) > options.tolerance and min(recent) >= 0.5 * trace[-window - 1][1]
 
 
 def _history(traces, x, stationarity) -> list[dict]:

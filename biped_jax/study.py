@@ -179,7 +179,7 @@ QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start 
 COARSE_SQP_OPTIONS = sqp.SQPOptions(max_iterations=200)
 SQP_OPTIONS = sqp.SQPOptions()
 #: SLSQP minimising the power limit (:func:`minimal_power_limits`).
-POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400, stall_iterations=50)
+POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400)
 
 #: The study's solvers: "sqp" (SLSQP, the default) or "al" (the batched augmented Lagrangian of the
 #: first two generations, kept for comparison and for batches of designs).

@@ -25,6 +25,7 @@ def test_compile_profile_lists_the_programs_the_command_compiled(results):
     assert "compile_profile.json" in json.loads((out / "manifest.json").read_text())["files"]
 
 
+@pytest.mark.slow
 def test_step_writes_results_table_and_figure(results):
     out, data = results
     assert (out / "heuristic_step.png").stat().st_size > 10_000
@@ -32,6 +33,7 @@ def test_step_writes_results_table_and_figure(results):
     assert [s["mass_class"] for s in data["steps"]] == ["12kg", "18kg"]
 
 
+@pytest.mark.slow
 def test_reported_step_is_physical(results):
     _, data = results
     for step in data["steps"]:

@@ -106,6 +106,7 @@ def test_unknown_drive_parts_are_named():
         donald.donald_drive(gear="GP32A-7")
 
 
+@pytest.mark.slow
 def test_default_gait_is_feasible_for_the_speed_optimisation():
     """The optimiser starts from a feasible point: the default gait keeps the stability margin, foot
     clearance and pelvis height with the single-iteration (differentiable) contact solver, and the

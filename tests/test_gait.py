@@ -67,6 +67,7 @@ def heuristic(solver):
     return model, x[0], jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(x, batch))
 
 
+@pytest.mark.slow
 def test_prescribed_joints_follow_the_spline_and_the_torques_give_its_accelerations(solver, heuristic):
     """The actuated joints are the B-spline and its derivatives at every sample; the applied torques
     reproduce the sampled accelerations through MJX's forward dynamics (so the unactuated row holds
@@ -86,6 +87,7 @@ def test_prescribed_joints_follow_the_spline_and_the_torques_give_its_accelerati
     np.testing.assert_allclose(qdd, trajectory.qdd, rtol=1e-9, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_start_state_and_first_sample_are_consistent(solver, heuristic):
     """The start is the spline's value and slope with the decision vector's stance state, and the first
     sample's ground force is Newton-Euler's at that state and acceleration (no deadbeat sample)."""
@@ -121,6 +123,7 @@ def test_integrator_and_quadrature_converge_at_fourth_order(biped12):
     assert np.all((order > 3.5) & (order < 4.6)), order
 
 
+@pytest.mark.slow
 def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     """Every solution carries J and the violations on a grid four times finer; the check fails when J
     moves by more than 0.5 % or the power limit is broken there by more than 1 % of M_W."""
@@ -148,6 +151,7 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     assert "power_limit" in broken["failed"] and broken["power_margin_fraction"] > 0.01
 
 
+@pytest.mark.slow
 def test_short_horizon_gaits_of_all_four_models_converge_in_one_batch(paper_solutions):
     for solution in paper_solutions:
         assert solution.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT), (solution.name, solution.status)
@@ -157,6 +161,7 @@ def test_short_horizon_gaits_of_all_four_models_converge_in_one_batch(paper_solu
     assert cost["M1"] < cost["M2"] < cost["M4"] and cost["M3"] < cost["M4"]
 
 
+@pytest.mark.slow
 def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solution):
     solution = m2_solution
     assert set(solution.violations) == set(gait.CONSTRAINT_GROUPS)
@@ -191,6 +196,7 @@ def test_multistart_reports_the_spread_and_keeps_the_best(solver):
     assert solution.cost <= min(feasible) * (1 + 1e-4)
 
 
+@pytest.mark.slow
 def test_table_values_are_recomputed_from_the_trajectory(m2_solution):
     stats = gait_report.joint_statistics(m2_solution)
     tr = m2_solution.trajectory
@@ -227,6 +233,7 @@ def test_bad_settings_are_rejected(changes, message):
         dataclasses.replace(SETTINGS, **changes)
 
 
+@pytest.mark.slow
 def test_projection_into_a_finer_space_keeps_the_curve(biped12):
     """Continuation: a coarse-space curve carried into a space with nested knots is the same curve."""
     fine = dataclasses.replace(SETTINGS, spans=8, segments=8)  # and into multiple shooting
@@ -249,6 +256,7 @@ def test_projection_into_a_finer_space_keeps_the_curve(biped12):
         np.testing.assert_allclose(nodes[1::2, k], np.interp(between, dense.t, series), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
     """The optimiser's MJX rollout (controller, Euler, ground force, impact map) against the same step
     computed with MuJoCo's C library and a numpy impact map."""
@@ -292,6 +300,7 @@ def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_
     np.testing.assert_allclose(gradient[0], central, rtol=1e-5, atol=1e-5 * np.abs(central).max())
 
 
+@pytest.mark.slow
 def test_multiple_shooting_reproduces_single_shooting_and_reports_its_defects(biped12):
     """A multiple-shot step whose nodes lie on the single-shot trajectory is that trajectory (the
     defects vanish); a node moved off it shows up as exactly that defect, the same in MuJoCo C."""

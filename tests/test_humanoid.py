@@ -15,6 +15,8 @@ from biped_jax import gait, humanoid, robots
 from biped_jax import hybrid_step as hs
 from biped_jax.robot_specs import PLANAR_SPECS
 
+pytestmark = pytest.mark.slow  # MJX humanoid rollouts: minutes on the 2-core CPU
+
 
 @pytest.fixture(scope="module")
 def planarised():

@@ -25,6 +25,7 @@ EXACT = 1e-10
 
 # ----------------------------------------------------------------------------- energy
 
+@pytest.mark.slow
 def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollout):
     """MuJoCo's semi-implicit Euler conserves energy to O(dt): halving dt halves the error.
 
@@ -169,6 +170,7 @@ def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, impact):
 
 # ----------------------------------------------------------------------------- variants agree
 
+@pytest.mark.slow
 def test_pinned_and_floating_variants_agree(biped12):
     """With the foot pinned, the floating model reduces to the pinned one: G^T M_f G = M_p and
     G^T grav_f = grav_p, with G = d q_floating / d q_pinned."""
@@ -249,6 +251,7 @@ def _directional_derivatives(cost, params, seed, directions=3):
     return np.array(analytic), np.array(finite)
 
 
+@pytest.mark.slow
 def test_rollout_gradient_matches_central_finite_differences(biped12):
     """d/d(q0, qd0, controls) of a rollout cost, 10 steps in float64, along random directions."""
     pinned = biped12.pinned
@@ -280,6 +283,7 @@ def test_swing_foot_and_ground_reaction_gradients_match_finite_differences(biped
     np.testing.assert_allclose(analytic, finite, rtol=1e-6, atol=1e-8)
 
 
+@pytest.mark.slow
 def test_touchdown_gradient_matches_finite_differences(biped12):
     def impact_cost(qd):
         result = hs.touchdown(biped12, Q, qd)

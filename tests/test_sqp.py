@@ -57,17 +57,6 @@ def test_a_solve_ended_infeasible_returns_its_cheapest_feasible_iterate():
     np.testing.assert_allclose(full.x[0, 0], 1.0, atol=1e-6)
 
 
-def test_a_stall_is_infeasible_iterations_that_do_not_halve_the_violation():
-    """The early stop of the power-limit minimisation: only after ``stall_iterations`` infeasible
-    iterations in a row whose violation did not halve; off by default."""
-    options = sqp.SQPOptions(stall_iterations=3)
-    hovering = [(1.0, 4e-3, 0)] * 4  # (f, scaled violation, evaluations) per iteration
-    assert sqp._stalled(hovering, options) and not sqp._stalled(hovering, sqp.SQPOptions())
-    assert not sqp._stalled(hovering[:3], options)  # too few iterations to say
-    assert not sqp._stalled([(1.0, 4e-3, 0), (1.0, 3e-3, 0), (1.0, 2.5e-3, 0), (1.0, 1.9e-3, 0)], options)
-    assert not sqp._stalled(hovering[:3] + [(1.0, 1e-6, 0)], options)  # a feasible iterate in the window
-
-
 def _banded_problem(with_residuals: bool):
     """Outputs local in x (residual i reaches x_i and x_i+1) but for one equality coupling the ends:
     two colours whatever the size (odd and even columns), three with an objective reaching x_0..x_2."""
