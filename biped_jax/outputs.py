@@ -133,10 +133,12 @@ def write_json(path: Path, record: Any) -> Path:
 def save_figure(figure, path: Path, dpi: int = 110) -> Path:
     """Saves a matplotlib figure atomically (the format from ``path``'s suffix)."""
     path = Path(path)
-    if _stamps:
-        figure.text(0.5, 0.995, _stamps[-1], color="red", ha="center", va="top", fontsize=9)
+    extra = {}
+    if _stamps:  # above everything (the figure grows to hold it), so that no title hides it
+        figure.text(0.5, 1.0, _stamps[-1], color="red", ha="center", va="bottom", fontsize=10)
+        extra = {"bbox_inches": "tight"}
     with _atomic(path, path.suffix) as temporary:
-        figure.savefig(temporary, dpi=dpi, format=path.suffix.lstrip("."))
+        figure.savefig(temporary, dpi=dpi, format=path.suffix.lstrip("."), **extra)
     return path
 
 
