@@ -10,7 +10,8 @@ curvature of the Lagrangian, not of a penalty.
 
 SLSQP (Kraft, A software package for sequential quadratic programming, DFVLR-FB 88-28, 1988) runs one
 problem at a time on the CPU; what it calls is compiled once per problem shape: the value (f, h, g),
-and its derivatives by central differences, 2n + 1 evaluations in one vmapped call (forward-mode
+and its derivatives by central differences, 2C + 1 evaluations in one vmapped call for C colours of
+columns (:class:`CompiledSQP`; C = n without colouring) (forward-mode
 autodiff through a long rollout costs minutes to compile on a small CPU). Forward differences (about
 7 correct digits) were measured too coarse: from the same M2 start they led SLSQP into the worse
 basin (J = 4.146) and never let it terminate; central ones are good to about 10 digits.
@@ -88,8 +89,9 @@ class CompiledSQP:
     output in common are perturbed together (Curtis, Powell and Reid, On the estimation of sparse
     Jacobian matrices, IMA J. Appl. Math. 13, 1974; SciPy's ``approx_derivative`` with ``sparsity``
     does the same): the gait's outputs are local in time (a B-spline control point moves four knot
-    spans, a shooting node one segment), so its 201 columns in 32 knot spans need 27 colours, 55
-    rollouts instead of 401 (0.59 s -> about 0.08 s a Jacobian on the 2-core CPU). Every row is still
+    spans, a shooting node one segment), so its 200 columns in 32 knot spans need 27 colours (padded
+    to 32: 65 rollouts instead of 401; 0.59 s -> about 0.08 s a Jacobian on the 2-core CPU). Without
+    ``sparse`` every column is a colour of its own (the dense differences). Every row is still
     differenced along one column only, so the result equals the dense differences to rounding. The
     pattern (which outputs each column reaches) is probed once, at the first point asked for, by
     perturbing each column alone in the single-point program (:func:`sparsity_pattern`); it is a
@@ -101,7 +103,6 @@ class CompiledSQP:
     def __init__(self, problem: al.ConstrainedProblem, step: float = SQPOptions.step, sparse: bool = True):
         self.problem, self.step, self.sparse = problem, step, sparse
         self._outputs = jax.jit(functools.partial(_outputs, problem))
-        self._dense = jax.jit(functools.partial(_dense_derivatives, problem, step))
         self._coloured = jax.jit(functools.partial(_coloured_derivatives, problem, step))
         self.colouring: tuple | None = None  # (directions (C, n), colour of each column (n,), pattern (m, n))
 
@@ -109,15 +110,23 @@ class CompiledSQP:
         """(f, h, g) at x."""
         return self._outputs(x, params)[:3]
 
+    @property
+    def rollouts(self) -> int | None:
+        """Rollouts per Jacobian, 2C + 1 (None before the first one fixed the colouring)."""
+        return None if self.colouring is None else 2 * self.colouring[0].shape[0] + 1
+
     def derivatives(self, x, params):
         """(f, h, g, grad f, jac h, jac g, jac r) at x by central differences."""
-        if not self.sparse:
-            return self._dense(x, params)
         if self.colouring is None:
-            pattern = sparsity_pattern(self._outputs, np.asarray(x, dtype=float), params,
-                                       self.problem.residuals is not None)
-            colour = column_colours(pattern)
-            count = -(-(colour.max(initial=-1) + 1) // COLOUR_PADDING) * COLOUR_PADDING
+            x = np.asarray(x, dtype=float)
+            has_residuals = self.problem.residuals is not None
+            if self.sparse:
+                pattern = sparsity_pattern(self._outputs, x, params, has_residuals)
+                colour = column_colours(pattern)
+                count = -(-(colour.max(initial=-1) + 1) // COLOUR_PADDING) * COLOUR_PADDING
+            else:  # every column alone
+                rows = _pattern_rows(self._outputs(jnp.asarray(x), params), has_residuals).size
+                pattern, colour, count = np.ones((rows, x.size), bool), np.arange(x.size), x.size
             directions = (np.arange(count)[:, None] == colour[None]).astype(float)
             self.colouring = (jnp.asarray(directions), jnp.asarray(colour), jnp.asarray(pattern))
         return self._coloured(x, params, *self.colouring)
@@ -141,19 +150,6 @@ def _outputs(problem: al.ConstrainedProblem, x, params):
 
 def _steps(step, x):
     return step * jnp.maximum(1.0, jnp.abs(x))
-
-
-def _dense_derivatives(problem, step, x, params):
-    """One vmapped rollout of the 2n + 1 points x, x +- step_i e_i."""
-    steps = _steps(step, x)
-    size = x.shape[-1]
-    points = jnp.concatenate([x[None], x[None] + jnp.diag(steps), x[None] - jnp.diag(steps)])
-    f, h, g, r = jax.vmap(functools.partial(_outputs, problem), in_axes=(0, None))(points, params)
-    width = 2 * steps
-
-    def slope(v):  # central differences, (outputs, n)
-        return ((v[1:size + 1] - v[size + 1:]) / width.reshape((-1,) + (1,) * (v.ndim - 1))).T
-    return f[0], h[0], g[0], slope(f), slope(h), slope(g), slope(r)
 
 
 def _coloured_derivatives(problem, step, x, params, directions, colour, pattern):
@@ -182,17 +178,22 @@ def sparsity_pattern(outputs: Callable, x: np.ndarray, params, has_residuals: bo
     whose slope vanishes at x still shows), in the compiled single-point program; an output that
     changes at all, bit for bit, depends on the column."""
     def rows(point):
-        f, h, g, r = map(np.asarray, outputs(jnp.asarray(point), params))
-        return np.concatenate([r, h, g] + ([np.atleast_1d(f)] if not has_residuals else []))
+        return _pattern_rows(outputs(jnp.asarray(point), params), has_residuals)
     scale = probe * np.maximum(1.0, np.abs(x))
     second = x + 10 * scale * np.random.default_rng(0).uniform(-1, 1, x.size)
     pattern = None
     for base in (x, second):
         centre = rows(base)
-        columns = [rows(base + scale[i] * np.eye(x.size)[i]) != centre for i in range(x.size)]
+        columns = [rows(base + scale * (np.arange(x.size) == i)) != centre for i in range(x.size)]
         found = np.stack(columns, axis=1)
         pattern = found if pattern is None else pattern | found
     return pattern
+
+
+def _pattern_rows(outputs, has_residuals: bool) -> np.ndarray:
+    """The outputs (f, h, g, r) as one vector in the pattern's row order."""
+    f, h, g, r = map(np.asarray, outputs)
+    return np.concatenate([r, h, g] + ([np.atleast_1d(f)] if not has_residuals else []))
 
 
 def column_colours(pattern: np.ndarray) -> np.ndarray:
@@ -216,15 +217,16 @@ def _to_numpy(a):
 
 def _last_call(function: Callable, on_call: Callable) -> Callable:
     """``function(x)`` remembering its last argument and result: SLSQP asks the objective and each
-    constraint (and their derivatives) separately at the same point, and one rollout serves all."""
+    constraint (and their derivatives) separately at the same point, and one rollout serves all.
+    ``on_call(x)`` runs after each real call."""
     last: dict = {}
 
     def remembered(x):
         key = x.tobytes()
         if key not in last:
-            on_call(x)
             last.clear()
             last[key] = function(x)
+            on_call(x)
         return last[key]
     return remembered
 
@@ -238,7 +240,7 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
     value = _last_call(lambda x: tuple(map(_to_numpy, compiled.value(jnp.asarray(x), params))),
                        lambda x: counts.update(evaluations=counts["evaluations"] + 1))
     derivatives = _last_call(lambda x: tuple(map(_to_numpy, compiled.derivatives(jnp.asarray(x), params))),
-                             lambda x: counts.update(evaluations=counts["evaluations"] + 2 * x.size + 1))
+                             lambda x: counts.update(evaluations=counts["evaluations"] + compiled.rollouts))
 
     x0 = np.asarray(x0, dtype=float)
     if scale is None:
