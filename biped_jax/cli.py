@@ -415,7 +415,7 @@ def _space_arguments(parser, when: str = "", substeps: int = 8, segments: bool =
 
 #: ``study.STUDY_SETTINGS``' knot spans and steps per span, the defaults of ``reproduce`` (written here:
 #: the parser imports no JAX; tests/test_cli.py checks they agree).
-STUDY_SPANS, STUDY_SUBSTEPS = 32, 6
+STUDY_SPANS, STUDY_SUBSTEPS = 48, 4
 
 
 def _parser() -> argparse.ArgumentParser:

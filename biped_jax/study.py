@@ -157,13 +157,14 @@ def _iterations(say, label: str, options: al.SolverOptions):
                               f"{np.max(row['violation']):.1e}, J = " + ", ".join(f"{c:.3f}" for c in row["cost"]))
 
 
-#: The study's reference space and grid: 32 cubic knot spans graded 0.5 towards the impacts, the stance
-#: angle shot in every span, 6 Runge-Kutta steps per span (192 in all). 16 spans left J 1.3-1.7 % above
-#: the collocation peer's (M2 at 20 W: 2.8506, grid converged), 32 spans 0.3-0.8 % (2.8145; README,
-#: "Gait optimiser"). The grid: 8 steps per span of 16 (128 in all) left M2's power 0.216 W (1.08 % of
-#: M_W) over the limit between grid points (a 4x finer grid), 12 (192) kept that within the refinement
-#: check's 1 %; 32 x 6 has the same 192 steps.
-STUDY_SETTINGS = gait.GaitSettings(spans=32, segments=32, substeps=6)
+#: The study's reference space and grid: 48 cubic knot spans graded 0.5 towards the impacts, the stance
+#: angle shot in every span, 4 Runge-Kutta steps per span (192 in all). Against the collocation peer
+#: (README, "Gait optimiser"): 16 spans left J 1.3-1.7 % above it (M2 at 20 W: 2.8506, grid converged),
+#: 32 spans 0.3-1.0 % (M4 at 20 W: 7.0165, the same from five starts: the space's limit, not a local
+#: optimum), 48 spans 0.1-0.5 %. The grid: 8 steps per span of 16 (128 in all) left M2's power 0.216 W
+#: (1.08 % of M_W) over the limit between grid points (a 4x finer grid), 192 steps keep that within the
+#: refinement check's 1 %, and a Jacobian's cost grows with the steps, not the spans.
+STUDY_SETTINGS = gait.GaitSettings(spans=48, segments=48, substeps=4)
 
 #: The study's start families: every heuristic family, the flexed-impact ones included.
 STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
