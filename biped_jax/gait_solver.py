@@ -169,13 +169,6 @@ class GaitSolver:
 
         self.problem = al.ConstrainedProblem.from_residuals(residuals)
 
-        def power_limit_problem(x_limit, model):  # (x, M_W / M_W0): minimise the limit itself
-            x, fraction = x_limit[:-1], x_limit[-1]
-            _, equalities, inequalities = residuals(
-                x, dataclasses.replace(model, power_limit=fraction * model.power_limit))
-            return fraction, equalities, inequalities
-
-        self.power_problem = al.ConstrainedProblem(power_limit_problem)
         self.compiled = al.compile_problem(self.problem)
         self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
         self._simulate = jax.jit(jax.vmap(functools.partial(gait.simulate, biped=biped, settings=settings)))
@@ -200,12 +193,12 @@ class GaitSolver:
         other.options = options
         return other
 
-    def _sqp_compiled(self, kind: str, options: sqp.SQPOptions) -> sqp.CompiledSQP:
-        """SLSQP's compiled functions of the energy ("energy") or power-limit ("power") problem."""
-        key = (kind, options.step, options.sparse)
+    def _sqp_compiled(self, options: sqp.SQPOptions) -> sqp.CompiledSQP:
+        """SLSQP's compiled functions of the gait problem (the power-limit minimisation runs on them:
+        :class:`~biped_jax.sqp.LimitMinimisation`)."""
+        key = (options.step, options.sparse)
         if key not in self._compiled_sqp:
-            problem = self.problem if kind == "energy" else self.power_problem
-            self._compiled_sqp[key] = sqp.compile_problem(problem, options.step, options.sparse)
+            self._compiled_sqp[key] = sqp.compile_problem(self.problem, options.step, options.sparse)
         return self._compiled_sqp[key]
 
     @staticmethod
@@ -221,7 +214,7 @@ class GaitSolver:
     def _solve_batch(self, x0, batch, progress, names):
         if isinstance(self.options, sqp.SQPOptions):
             return sqp.solve(self.problem, x0, batch, self.options,
-                             compiled=self._sqp_compiled("energy", self.options),
+                             compiled=self._sqp_compiled(self.options),
                              progress=self._sqp_progress(progress, names))
         return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
@@ -258,7 +251,7 @@ class GaitSolver:
         batch = stack_tree(models)
         x0 = np.asarray(x0, dtype=float)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
-        energy = self._sqp_compiled("energy", options)
+        energy = self._sqp_compiled(options)
         scales = []
         for b in range(len(models)):
             jac_r = np.asarray(energy.derivatives(jnp.asarray(x0[b]), jax.tree.map(lambda a: a[b], batch))[6])
@@ -266,8 +259,10 @@ class GaitSolver:
             scale[:-1, :-1] = sqp.gauss_newton_scale(jac_r, options.precondition or SQP_PRECONDITION)
             scale[-1, -1] = POWER_LIMIT_STEP
             scales.append(scale)
-        result = sqp.solve(self.power_problem, start, batch, options,
-                           compiled=self._sqp_compiled("power", options),
+        # the limit as a variable on the energy problem's compiled functions: M_W = t M_W0 (t a float)
+        limit = sqp.LimitMinimisation(energy, lambda model, t: dataclasses.replace(
+            model, power_limit=model.power_limit * t))
+        result = sqp.solve(self.problem, start, batch, options, compiled=limit,
                            progress=self._sqp_progress(progress, names), scales=np.stack(scales))
         x = result.x[:, :-1]
         solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])

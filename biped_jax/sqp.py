@@ -132,6 +132,66 @@ class CompiledSQP:
         return self._coloured(x, params, *self.colouring)
 
 
+class LimitMinimisation:
+    """SLSQP's value and derivatives of "minimise the limit itself": on (x, t), minimise t subject to
+    a compiled problem's constraints with its limit parameter scaled by t, built on that problem's
+    compiled functions (no program of its own: the same shapes, the same compiled rollouts).
+
+    ``at_limit(params, t)`` returns the problem's parameters with the limit scaled by the Python float
+    t; the limit must enter the constraints linearly (the gait's scaled power constraint
+    (|qdot u| - t M_W0) / P_s does), so that the column of t is exactly g(x, t + 1) - g(x, t): one
+    rollout beside the 2C + 1 of the problem's Jacobian. ``cost_weight`` w adds w f(x) to t (f the
+    problem's own objective, e.g. w = 0 for the pure epigraph form)."""
+
+    def __init__(self, compiled: CompiledSQP, at_limit: Callable, cost_weight: float = 0.0):
+        self.compiled, self.at_limit, self.cost_weight = compiled, at_limit, cost_weight
+        self._column = None  # d g / d t of the last Jacobian (constant for a limit entering linearly)
+
+    def _split(self, x_limit, params):
+        x_limit = np.asarray(x_limit, dtype=float)
+        t = float(x_limit[-1])
+        return jnp.asarray(x_limit[:-1]), t, self.at_limit(params, t)
+
+    def value(self, x_limit, params):
+        """(t + w f, h, g) at (x, t)."""
+        x, t, scaled = self._split(x_limit, params)
+        f, h, g = self.compiled.value(x, scaled)
+        return t + self.cost_weight * f, h, g
+
+    @property
+    def rollouts(self) -> int | None:
+        """Rollouts per Jacobian: the problem's and one for the limit's column."""
+        inner = self.compiled.rollouts
+        return None if inner is None else inner + 1
+
+    def derivatives(self, x_limit, params):
+        """(f, h, g, grad f, jac h, jac g, jac r) at (x, t); no residuals (jac r is (0, n + 1))."""
+        x, t, scaled = self._split(x_limit, params)
+        f, h, g, grad, jac_h, jac_g, _ = map(np.asarray, self.compiled.derivatives(x, scaled))
+        column = np.asarray(self.compiled.value(x, self.at_limit(params, t + 1.0))[2]) - g
+        self._column = column
+        n = x.size + 1
+        return (t + self.cost_weight * f, h, g, np.append(self.cost_weight * grad, 1.0),
+                np.concatenate([jac_h, np.zeros((h.size, 1))], axis=1),
+                np.concatenate([jac_g, column[:, None]], axis=1), np.zeros((0, n)))
+
+    def lifted(self, x_limit, f, h, g, tolerance: float):
+        """(x, t', f') with t raised just enough that the constraints on the limit hold (to rounding)
+        at an iterate that keeps every other constraint within ``tolerance``; None otherwise (or
+        before the first Jacobian). The gait at an infeasible SLSQP iterate is still one that walks
+        at a somewhat higher limit: where SLSQP stalls, the best of these is the answer so far."""
+        column = self._column
+        if column is None or np.max(np.abs(h), initial=0.0) > tolerance:
+            return None
+        on_limit = column < -1e-9 * np.max(np.abs(column))
+        if np.max(g[~on_limit], initial=0.0) > tolerance:
+            return None
+        raise_by = max(0.0, float(np.max(g[on_limit] / -column[on_limit], initial=0.0)))
+        lifted = np.array(x_limit, dtype=float)
+        lifted[-1] += raise_by
+        return lifted, f + raise_by
+
+
 def compile_problem(problem: al.ConstrainedProblem, step: float = SQPOptions.step,
                     sparse: bool = True) -> CompiledSQP:
     """Value and central-difference derivatives of ``problem``, compiled on first call (see
@@ -247,6 +307,7 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
         scale = gauss_newton_scale(derivatives(x0)[6], options.precondition)  # x = x0 + scale @ z
     to_x = (lambda z: x0 + scale @ z) if scale is not None else (lambda z: z)
     iterations, acceptable = [0], [False]
+    lift = getattr(compiled, "lifted", None)
     f0, h0, g0 = value(x0)
     trace = [(f0, _scaled_violation(h0, g0), counts["evaluations"])]  # (f, violation, evaluations) per iteration
     # the cheapest feasible iterate: where SLSQP ends infeasible (stalled on a degenerate problem) it
@@ -259,6 +320,10 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
         trace.append((f, _scaled_violation(h, g), counts["evaluations"]))
         if trace[-1][1] <= options.tolerance and f < best[0][0]:
             best[0] = (f, to_x(np.array(z)))
+        elif lift is not None:  # an iterate infeasible only on the limit, lifted to feasibility
+            lifted = lift(to_x(np.array(z)), f, h, g, options.tolerance)
+            if lifted is not None and lifted[1] < best[0][0]:
+                best[0] = (lifted[1], lifted[0])
         if progress:
             progress(iterations[0], f, trace[-1][1])
         if _acceptable(trace, options):

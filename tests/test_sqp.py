@@ -57,6 +57,43 @@ def test_a_solve_ended_infeasible_returns_its_cheapest_feasible_iterate():
     np.testing.assert_allclose(full.x[0, 0], 1.0, atol=1e-6)
 
 
+def _shared_load_problem():
+    """min |x - (2, 2)|^2 s.t. x0 + x1 = 3, x_i <= L (params["limit"]): the limit enters linearly."""
+    return al.ConstrainedProblem.from_residuals(
+        lambda x, p: (x - 2.0, jnp.array([x[0] + x[1] - 3.0]), x - p["limit"]))
+
+
+def test_the_smallest_limit_on_the_problems_own_compiled_functions():
+    """LimitMinimisation: min t s.t. x0 + x1 = 3, x_i <= t L0 has t = 1.5 / L0 (the load shared
+    evenly); its derivatives equal the explicit epigraph problem's, and an iterate infeasible only on
+    the limit is lifted to the smallest t that holds it."""
+    compiled = sqp.compile_problem(_shared_load_problem())
+    limit = sqp.LimitMinimisation(compiled, lambda p, t: {"limit": p["limit"] * t})
+    params = {"limit": jnp.array([3.0, 6.0])}
+    result = sqp.solve(_shared_load_problem(), np.array([[1.0, 2.0, 1.0], [1.0, 2.0, 1.0]]), params,
+                       compiled=limit)
+    assert result.status == [al.CONVERGED, al.CONVERGED]
+    np.testing.assert_allclose(result.x, [[1.5, 1.5, 0.5], [1.5, 1.5, 0.25]], atol=1e-7)
+
+    epigraph = jax.jacfwd(lambda z: jnp.concatenate([z[:2] - 3.0 * z[2], jnp.array([z[0] + z[1] - 3.0])]))
+    point, one = np.array([0.3, 2.1, 0.7]), {"limit": jnp.asarray(3.0)}
+    f, h, g, grad, jac_h, jac_g, jac_r = limit.derivatives(point, one)
+    expected = np.asarray(epigraph(jnp.asarray(point)))
+    np.testing.assert_allclose(jac_g, expected[:2], atol=1e-8)
+    np.testing.assert_allclose(jac_h, expected[2:], atol=1e-8)
+    np.testing.assert_allclose(grad, [0.0, 0.0, 1.0])
+    assert f == pytest.approx(0.7)
+    assert jac_r.shape == (0, 3)
+    # (2, 1) at t = 0.5 (limit 1.5): x0 is 0.5 over; lifted to t = 2 / 3, x0 exactly at the limit
+    at = np.array([2.0, 1.0, 0.5])
+    f, h, g = limit.value(at, one)
+    (x_lifted, f_lifted) = limit.lifted(at, f, np.asarray(h), np.asarray(g), 1e-5)
+    np.testing.assert_allclose(x_lifted, [2.0, 1.0, 2.0 / 3.0])
+    assert f_lifted == pytest.approx(2.0 / 3.0)
+    # infeasible off the limit (x0 + x1 = 4): no lift
+    assert limit.lifted(np.array([3.0, 1.0, 2.0]), 2.0, np.array([1.0]), np.array([-3.0, -5.0]), 1e-5) is None
+
+
 def _banded_problem(with_residuals: bool):
     """Outputs local in x (residual i reaches x_i and x_i+1) but for one equality coupling the ends:
     two colours whatever the size (odd and even columns), three with an objective reaching x_0..x_2."""
