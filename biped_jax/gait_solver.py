@@ -59,6 +59,24 @@ GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-2, max_ou
                                        penalty_initial=10.0, penalty_max=1e6)
 
 
+#: Report rollouts (:meth:`GaitSolver.simulate`, the refinement check) run this many problems at a
+#: time, the last batch padded: every batch size then shares one compiled program per grid (the
+#: study's 36 coarse starts and its 4 models were two programs of about 20 s each to compile).
+ROLLOUT_BATCH = 4
+
+
+def in_batches(function: Callable, x, models, size: int = ROLLOUT_BATCH):
+    """``function(x, models)`` (batched over the leading dimension B) evaluated ``size`` problems at a
+    time, the last batch padded with copies of the last problem; numpy outputs of leading dimension B."""
+    count = int(np.shape(x)[0])
+    index = np.minimum(np.arange(-(-count // size) * size), count - 1)
+    x = np.asarray(x)[index]
+    models = jax.tree.map(lambda a: np.asarray(a)[index], models)
+    parts = [jax.tree.map(np.asarray, function(x[i:i + size], jax.tree.map(lambda a: a[i:i + size], models)))
+             for i in range(0, index.size, size)]
+    return jax.tree.map(lambda *a: np.concatenate(a)[:count], *parts)
+
+
 def stack_tree(trees: list):
     """A batch (leading dimension B) of pytrees with strong float64 leaves: a weakly typed leaf (from a
     Python float) would compile a second program."""
@@ -219,8 +237,12 @@ class GaitSolver:
         return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
     def simulate(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
-        """Batched rollout: x (B, n), models with leading dimension B."""
-        return self._simulate(x, models)
+        """Batched rollout: x (B, n), models with leading dimension B; numpy leaves (B, ...)."""
+        return in_batches(self._simulate, x, models)
+
+    def simulate_refined(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
+        """:meth:`simulate` on the refinement check's grid (4x finer)."""
+        return in_batches(self._simulate_refined, x, models)
 
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
@@ -268,7 +290,7 @@ class GaitSolver:
         solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
         limits = solve_grid
         if self.check_refinement:
-            fine = self._simulate_refined(jnp.asarray(x), batch)
+            fine = self.simulate_refined(x, batch)
             limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
         at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
         cost = np.array([float(energy.value(jnp.asarray(x[b]), jax.tree.map(lambda a: a[b], batch))[0])
@@ -281,8 +303,8 @@ class GaitSolver:
     def _report(self, names: list[str], models: list[gait.GaitModel], result: al.SolveResult) -> list[GaitSolution]:
         """GaitSolutions of a solver result: re-simulated, checked on the refined grid, classified."""
         batch = stack_tree(models)
-        trajectories = self.simulate(jnp.asarray(result.x), batch)
-        refined = self._simulate_refined(jnp.asarray(result.x), batch) if self.check_refinement else None
+        trajectories = self.simulate(result.x, batch)
+        refined = self.simulate_refined(result.x, batch) if self.check_refinement else None
         solutions = []
         for b, (name, model) in enumerate(zip(names, models)):
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)

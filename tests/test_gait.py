@@ -67,6 +67,22 @@ def heuristic(solver):
     return model, x[0], jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(x, batch))
 
 
+def test_report_rollouts_share_one_program_for_every_batch_size(solver, heuristic):
+    """GaitSolver.simulate runs 4 problems at a time (the last batch padded): one and five problems
+    give the rows a direct vmapped rollout gives, without compiling a program per batch size."""
+    model, x, _ = heuristic
+    xs = np.stack([x * (1 + 0.01 * k) for k in range(5)])
+    models = gait_solver.stack_tree([dataclasses.replace(model, speed=jnp.asarray(0.5 + 0.01 * k))
+                                     for k in range(5)])
+    direct = jax.jit(jax.vmap(lambda x_, m: gait.simulate(x_, m, solver.biped, SETTINGS)))(jnp.asarray(xs), models)
+    before = solver._simulate._cache_size()
+    five, one = solver.simulate(xs, models), solver.simulate(xs[:1], jax.tree.map(lambda a: a[:1], models))
+    assert before >= 1 and solver._simulate._cache_size() == before  # the fixture's batch of four
+    assert five.u.shape == (5,) + direct.u.shape[1:]
+    np.testing.assert_allclose(five.u, direct.u, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(one.q, np.asarray(direct.q)[:1], rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.slow
 def test_prescribed_joints_follow_the_spline_and_the_torques_give_its_accelerations(solver, heuristic):
     """The actuated joints are the B-spline and its derivatives at every sample; the applied torques
@@ -133,7 +149,7 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     assert check["passed"] == (not check["failed"])
     model = gait.gait_model("12kg", 0.555, 20.0)
     batch = gait_solver.stack_tree([model] * 4)
-    fine = jax.tree.map(lambda a: np.asarray(a[0]), solver._simulate_refined(
+    fine = jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate_refined(
         jnp.asarray(np.tile(m2_solution.x, (4, 1))), batch))
     assert check["cost"] == pytest.approx(float(gait.cost(fine)), rel=1e-12)
     moved = gait_solver.refinement_record(1.01 * check["cost"], fine, model, solver.refined_settings)
