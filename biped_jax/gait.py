@@ -67,6 +67,8 @@ VOLTAGE_SCALE = 10.0  # V
 #: The single-support dynamics a rollout can use (:class:`GaitSettings`).
 DYNAMICS = ("chain", "mjx")
 
+#: Friction coefficient standing for "no friction limit" (Kelly's benchmark), the largest accepted.
+NO_FRICTION_LIMIT = 1e3
 #: Power limit standing for "no power limit" (Kelly's benchmark, the co-design's mass study), W.
 NO_POWER_LIMIT = 1e6
 
@@ -124,7 +126,9 @@ class GaitSettings:
                 or not 0.0 <= self.grading <= 1.0:
             raise ValueError(f"GaitSettings.grading must be in [0, 1], got {self.grading!r}")
         _check_number("torque_bound", self.torque_bound, 0.0, math.inf, "N m")
-        _check_number("friction", self.friction, 0.0, 10.0, "(friction coefficient)")
+        # 1e3 is the "no friction limit" of Kelly's benchmark (kelly.NO_FRICTION_LIMIT): the cone then
+        # only keeps F_z >= 0; a coefficient between 10 and that is a typo more likely than a foot
+        _check_number("friction", self.friction, 0.0, NO_FRICTION_LIMIT, "(friction coefficient; 1e3: no limit)")
         _check_number("knee_max", self.knee_max, 0.0, math.pi, "rad")
 
     @property

@@ -32,7 +32,7 @@ STEP_LENGTH = 0.5  # m
 STEP_TIME = 0.7  # s
 TORQUE_BOUND = 100.0  # N m, Kelly's uMax
 #: Friction coefficient standing for "no limit": the cone then only keeps F_z >= 0.
-NO_FRICTION_LIMIT = 1e3
+NO_FRICTION_LIMIT = gait.NO_FRICTION_LIMIT
 #: Power limit standing for "none", W.
 NO_POWER_LIMIT = gait.NO_POWER_LIMIT
 #: Settings of the benchmark: the study's reference space and grid with Kelly's bounds.

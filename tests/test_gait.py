@@ -52,6 +52,17 @@ def test_reach_follows_the_robots_legs():
         gait.gait_model("kelly", 0.7, 1e6, step_length=1.6)
 
 
+def test_kellys_benchmark_poses_its_problem():
+    """biped_jax.kelly imports and poses Kelly's problem (its "no friction limit" is a setting the
+    checks accept: an import-time ValueError once broke `biped-jax kelly` without a test noticing)."""
+    from biped_jax import kelly
+    assert kelly.KELLY_SETTINGS.friction == gait.NO_FRICTION_LIMIT
+    model = kelly.kelly_model()
+    assert float(model.speed) == pytest.approx(0.5 / 0.7) and float(model.step_length) == 0.5
+    with pytest.raises(ValueError, match="friction"):
+        gait.GaitSettings(friction=2e3)
+
+
 def test_unknown_mass_class_is_rejected():
     with pytest.raises(ValueError, match="'15kg'"):
         gait.gait_model("15kg", 0.5, 20.0)
