@@ -137,6 +137,21 @@ def test_bad_input_is_rejected(m2_reference, paper_solutions):
         humanoid.gait_reference(solution.x, model, short_settings(), rocking)
 
 
+def test_a_sliver_of_backward_stance_travel_before_touchdown_is_absorbed(m2_reference):
+    """The 48-span optima swing the stance leg back by about 1e-4 rad in the last grid points: the
+    replay's phase clock is then the stance angle's running maximum (flat over that sliver), while a
+    reversal of more than 1 % of the range still cannot phase a replay."""
+    x, model, settings, trajectory, _ = m2_reference
+    q = np.array(trajectory.q)
+    q[-2:, 0] = q[-3, 0] - np.array([0.5e-4, 1e-4])
+    reference = humanoid.gait_reference(x, model, settings, dataclasses.replace(trajectory, q=q))
+    stance_angle = np.asarray(reference.stance_angle)
+    assert np.all(np.diff(stance_angle) >= 0) and stance_angle[-1] == pytest.approx(q[-3, 0], abs=1e-12)
+    q[-2:, 0] = q[-3, 0] - 0.02 * (q[-3, 0] - q[0, 0])
+    with pytest.raises(ValueError, match="monotonically"):
+        humanoid.gait_reference(x, model, settings, dataclasses.replace(trajectory, q=q))
+
+
 def test_control_law_is_feed_forward_plus_pd_on_the_phased_reference(m2_reference, planarised):
     """At the step's start the law gives u_ff + K_d qdot_ref (joints on the reference), the reference's
     rate at the nominal pace whatever the measured rates (the - K_d qdot part is the model's joint
