@@ -140,11 +140,10 @@ class LimitMinimisation:
     ``at_limit(params, t)`` returns the problem's parameters with the limit scaled by the Python float
     t; the limit must enter the constraints linearly (the gait's scaled power constraint
     (|qdot u| - t M_W0) / P_s does), so that the column of t is exactly g(x, t + 1) - g(x, t): one
-    rollout beside the 2C + 1 of the problem's Jacobian. ``cost_weight`` w adds w f(x) to t (f the
-    problem's own objective, e.g. w = 0 for the pure epigraph form)."""
+    rollout beside the 2C + 1 of the problem's Jacobian."""
 
-    def __init__(self, compiled: CompiledSQP, at_limit: Callable, cost_weight: float = 0.0):
-        self.compiled, self.at_limit, self.cost_weight = compiled, at_limit, cost_weight
+    def __init__(self, compiled: CompiledSQP, at_limit: Callable):
+        self.compiled, self.at_limit = compiled, at_limit
         self._column = None  # d g / d t of the last Jacobian (constant for a limit entering linearly)
 
     def _split(self, x_limit, params):
@@ -153,10 +152,10 @@ class LimitMinimisation:
         return jnp.asarray(x_limit[:-1]), t, self.at_limit(params, t)
 
     def value(self, x_limit, params):
-        """(t + w f, h, g) at (x, t)."""
+        """(t, h, g) at (x, t)."""
         x, t, scaled = self._split(x_limit, params)
-        f, h, g = self.compiled.value(x, scaled)
-        return t + self.cost_weight * f, h, g
+        _, h, g = self.compiled.value(x, scaled)
+        return t, h, g
 
     @property
     def rollouts(self) -> int | None:
@@ -167,11 +166,11 @@ class LimitMinimisation:
     def derivatives(self, x_limit, params):
         """(f, h, g, grad f, jac h, jac g, jac r) at (x, t); no residuals (jac r is (0, n + 1))."""
         x, t, scaled = self._split(x_limit, params)
-        f, h, g, grad, jac_h, jac_g, _ = map(np.asarray, self.compiled.derivatives(x, scaled))
+        _, h, g, _, jac_h, jac_g, _ = map(np.asarray, self.compiled.derivatives(x, scaled))
         column = np.asarray(self.compiled.value(x, self.at_limit(params, t + 1.0))[2]) - g
         self._column = column
         n = x.size + 1
-        return (t + self.cost_weight * f, h, g, np.append(self.cost_weight * grad, 1.0),
+        return (t, h, g, np.append(np.zeros(x.size), 1.0),
                 np.concatenate([jac_h, np.zeros((h.size, 1))], axis=1),
                 np.concatenate([jac_g, column[:, None]], axis=1), np.zeros((0, n)))
 

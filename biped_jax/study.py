@@ -183,7 +183,7 @@ SQP_OPTIONS = sqp.SQPOptions()
 #: (160-210 iterations, about 15 s a model); in the study's space 100 iterations. There SLSQP does not
 #: converge (measured 2026-12-02 in 48 spans, 4 x 400 iterations, 18 min: every model at the cap, the
 #: best feasible limits 1.43 / 2.33 / 2.17 / 3.47 W; after 100 iterations within 1-4 % of those on the
-#: solve grid), so the limit reported is an upper bound either way: the cheaper one is the study's.
+#: solve grid), so the limit reported is an upper bound either way, and the study takes the shorter stage.
 POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400)
 FINE_POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=100)
 
