@@ -256,8 +256,8 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
                                   f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}",
                                   task=(label, i + 1, solver.options.max_outer))
 
-    def done(label, result, problems=None):  # problems: how many the stage solved (default: all)
-        count = len(result) if problems is None else problems
+    def done(label, result, solved=len):  # solved(result): how many problems the stage solved
+        count = solved(result)
         say(f"{label}: done", task=(label, count, count))
         return result
 
@@ -297,11 +297,10 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
         say(f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at most "
             f"{cap}, M_W / start = {row['cost'][0]:.4f}, scaled violation "
             f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
-    usable = sum(s.status == al.CONVERGED for s in solutions)  # the models the stage starts from
     minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
         "smallest power limit (study space)", minimal_power_limits(
             solvers.power, solutions, _models(PAPER_MODELS), coarse=solvers.coarse_power, progress=power_report),
-        usable), resume, say)
+        lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
 
     records = []
     for solution, minimum in zip(solutions, minimal):
