@@ -288,23 +288,26 @@ class GaitSolver:
                            progress=self._sqp_progress(progress, names), scales=np.stack(scales))
         x = result.x[:, :-1]
         solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
-        limits = solve_grid
+        limits, fine = solve_grid, None
         if self.check_refinement:
             fine = self.simulate_refined(x, batch)
             limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
         at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
         cost = np.array([float(energy.value(jnp.asarray(x[b]), jax.tree.map(lambda a: a[b], batch))[0])
                          for b in range(len(models))])  # J does not depend on the limit
-        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost))
+        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost), refined=fine)
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
 
-    def _report(self, names: list[str], models: list[gait.GaitModel], result: al.SolveResult) -> list[GaitSolution]:
-        """GaitSolutions of a solver result: re-simulated, checked on the refined grid, classified."""
+    def _report(self, names: list[str], models: list[gait.GaitModel], result: al.SolveResult,
+                refined: gait.GaitTrajectory | None = None) -> list[GaitSolution]:
+        """GaitSolutions of a solver result: re-simulated, checked on the refined grid (``refined``:
+        that rollout of ``result.x`` when the caller has it), classified."""
         batch = stack_tree(models)
         trajectories = self.simulate(result.x, batch)
-        refined = self.simulate_refined(result.x, batch) if self.check_refinement else None
+        if refined is None and self.check_refinement:
+            refined = self.simulate_refined(result.x, batch)
         solutions = []
         for b, (name, model) in enumerate(zip(names, models)):
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
