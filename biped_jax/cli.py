@@ -328,13 +328,14 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
     return report
 
 
-def codesign(out: Path, settings, iterations: int, resume: bool = False) -> dict:
+def codesign(out: Path, settings, iterations: int, resume: bool = False, solver: str = "sqp") -> dict:
     """The co-design studies; see :mod:`biped_jax.codesign_study`."""
     from biped_jax import codesign_study
 
     started = time.perf_counter()
     with live_progress() as progress:
-        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume)
+        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume,
+                                               solver_name=solver)
     for speed, fit in results["mass_scaling"]["fits"].items():
         console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
                       f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
@@ -460,6 +461,8 @@ def _parser() -> argparse.ArgumentParser:
     design.add_argument("--iterations", type=_integer("iterations", 1, 1000), default=5,
                         help="co-optimisation iterations, 1-1000 (default 5)")
     design.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
+    design.add_argument("--solver", choices=("sqp", "al"), default="sqp",
+                        help="sqp: SLSQP, one design after another (default); al: the batched augmented Lagrangian")
     design.add_argument("--resume", action="store_true",
                         help="continue interrupted studies in --out from their finished parts (OUT/stages)")
     drive = commands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")
@@ -598,7 +601,7 @@ def _run(args) -> int:
             parser.error(str(error))
         return 0
     if args.command == "codesign":
-        codesign(args.out, settings, args.iterations, args.resume)
+        codesign(args.out, settings, args.iterations, args.resume, args.solver)
         return 0
     reproduce(args.out, settings, args.resume, args.solver, args.quick)
     return 0

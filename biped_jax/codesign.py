@@ -16,11 +16,12 @@ to the gait problem (:func:`gait_model`) as
 So one compiled gait program (``GaitSolver``) solves any batch of designs, and the paper's problem is
 the special case of ideal drives. Gradients of the optimal Joule energy with respect to the design come
 from the envelope theorem (:func:`biped_jax.augmented_lagrangian.optimal_value_gradient`): at a
-converged gait, one gradient of the Lagrangian with the solver's multipliers, no differentiation
-through the solver. Chosen over implicit differentiation of the KKT system (needs the Lagrangian's
-Hessian through the rollout: a second-order program that compiles for minutes on a small CPU) and over
-design variables as extra decision variables (couples every design of a batch into one larger, worse
-conditioned gait problem and loses the warm-started batch of independent solves).
+converged gait, one gradient of the Lagrangian with the solver's multipliers (SLSQP's, see
+:data:`SOLVER_OPTIONS`), no differentiation through the solver. Chosen over implicit differentiation
+of the KKT system (needs the Lagrangian's Hessian through the rollout: a second-order program that
+compiles for minutes on a small CPU) and over design variables as extra decision variables (couples
+every design into one larger, worse conditioned gait problem and loses the warm-started independent
+solves).
 """
 
 from __future__ import annotations
@@ -39,11 +40,20 @@ from biped_jax import checks
 from biped_jax import drives as drive_model
 from biped_jax import gait
 from biped_jax import hybrid_step as hs
+from biped_jax import sqp
 from biped_jax.design import PLANAR_DRIVE_MOUNTS, PLANAR_LINKS, Design, check_design
 from biped_jax.gait_solver import stack_tree
 
 #: The paper's drive for the 12 kg robot (Section 2.3): the 42 V RE 25 winding, GP 32 A 66:1, 38 V supply.
 REFERENCE_MOTOR, REFERENCE_GEARHEAD = "RE25-42V", "GP32A-66.22"
+#: The co-design's gait solver: SLSQP (one design after another), as the study's. The batched augmented
+#: Lagrangian (``GaitSolver``'s default) stops at a stationarity of 1e-2, and there neighbouring designs
+#: land on different local optima: measured 2026-12-02 on the tests' 4-span grid at 66:1 * exp(+-0.03),
+#: its J* were 5.24 / 5.80 / 4.64 with the gaits 0.58-0.66 rad apart, so the envelope gradient (-10.8 per
+#: log N) and the difference of the optima disagreed; SLSQP's optima of the same three designs are
+#: 5.789 / 5.472 / 5.174, 0.026 rad apart, and its multipliers give -10.240 against the difference's
+#: -10.248. The iteration cap bounds a design without a gait (a too-high speed in a bisection).
+SOLVER_OPTIONS = sqp.SQPOptions(max_iterations=300)
 
 
 @jax.tree_util.register_dataclass

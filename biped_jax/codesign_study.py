@@ -1,5 +1,6 @@
-"""The co-design studies of ``biped-jax codesign``: every batch is 16 designs, so one compiled gait
-program (and one gradient program) serves them all.
+"""The co-design studies of ``biped-jax codesign``: designs in chunks of 16 (with the batched augmented
+Lagrangian one compiled program per chunk; with SLSQP, the default, one design after another on the
+same compiled programs), every solve warm-started from the paper design's gait.
 
 (a) peak joint power and Joule energy per metre against total mass (8-24 kg) at 0.417 and 0.555 m/s,
     with fitted power-law exponents; (b) the highest feasible speed against the gear ratio for the 42 V
@@ -20,7 +21,7 @@ import numpy as np
 
 from biped_jax import augmented_lagrangian as al
 from biped_jax import codesign, drives, gait
-from biped_jax.gait_solver import GaitSolver
+from biped_jax.gait_solver import GAIT_SOLVER_OPTIONS, GaitSolver
 from biped_jax import outputs
 
 BATCH = 16
@@ -30,9 +31,9 @@ POWER_LIMIT = 20.0  # W, the RE 25's rating and the paper's M_W for the 12 kg ro
 #: The study's windings: the paper's three (estimates) and the datasheet 24 V winding; the paper's
 #: 42 V first, so that its gait (first batch, heuristic starts) warm-starts the second batch.
 WINDINGS = ("RE25-42V", "RE25-118752", "RE25-30V", "RE25-48V")
-#: Iteration budget of the studies' solves: a batch runs until its slowest design stops, so designs
-#: without a gait would otherwise spend the full default budget; those hitting this one report
-#: "iteration limit".
+#: Iteration budget of the studies' solves with the augmented Lagrangian (``--solver al``): a batch runs
+#: until its slowest design stops, so designs without a gait would otherwise spend the full default
+#: budget; those hitting this one report "iteration limit". SLSQP's is ``codesign.SOLVER_OPTIONS``.
 STUDY_OPTIONS = dict(max_outer=15, max_inner=250)
 #: Catalogue ratios of the Pareto study (2- and 3-stage GP 32 A).
 PARETO_GEARHEADS = ("GP32A-18", "GP32A-23", "GP32A-33", "GP32A-51", "GP32A-66.22", "GP32A-86",
@@ -55,16 +56,17 @@ def power_law_exponent(mass, value) -> float:
     return float(np.polyfit(np.log(mass), np.log(value), 1)[0])
 
 
-def mass_scaling(solver: GaitSolver, say) -> dict:
+def mass_scaling(solver: GaitSolver, x_start, say) -> dict:
     """Study (a): the paper's drive (42 V, 66:1) on robots of 8-24 kg (structure scaled), no power and
-    no voltage limit, so that the requirement itself is measured."""
+    no voltage limit, so that the requirement itself is measured; warm-started from ``x_start``."""
     designs, speeds = [], []
     for speed in SPEEDS:
         for mass in MASSES:
             designs.append(codesign.catalogue_design(total_mass=float(mass), supply_voltage=drives.NO_VOLTAGE_LIMIT))
             speeds.append(speed)
-    say("(a) 8 masses x 2 speeds in one batch")
-    solutions = codesign.solve_designs(solver, designs, speeds, gait.NO_POWER_LIMIT, summary=say)
+    say("(a) 8 masses x 2 speeds")
+    solutions = codesign.solve_designs(solver, designs, speeds, gait.NO_POWER_LIMIT,
+                                       x0=np.tile(x_start, (len(designs), 1)), summary=say)
     records = [codesign.design_record(d, s) for d, s in zip(designs, solutions)]
     fits = {}
     for speed in SPEEDS:
@@ -111,29 +113,34 @@ def pareto_front(points: list[tuple[float, float]]) -> list[int]:
             if not any((m2 <= m and e2 <= e) and (m2 < m or e2 < e) for m2, e2 in points)]
 
 
-def pareto(solver: GaitSolver, say) -> tuple[dict, np.ndarray]:
-    """Study (c): every winding x ratio of the lists above (two batches; the first from heuristic starts,
-    the second from the paper design's gait) at 0.555 m/s,
-    M_W = 20 W, 38 V: Joule energy per metre against robot mass, and the Pareto front of the converged
-    designs. Also returns the paper's design's gait (42 V, 66:1) as the warm start of the other studies."""
+def reference_gait(solver: GaitSolver, say) -> np.ndarray:
+    """The paper's design (42 V, 66:1) at 0.555 m/s, M_W = 20 W, 38 V from the heuristic start: the warm
+    start of every study. RuntimeError with its status and violations if it finds no gait."""
+    say("the paper's design (42 V, 66:1) from the heuristic start")
+    reference, = codesign.solve_designs(solver, [codesign.catalogue_design()], SPEEDS[1], POWER_LIMIT, summary=say)
+    if not _converged(reference):
+        raise RuntimeError(f"the paper's design found no gait ({reference.status}; {reference.violations})")
+    return reference.x
+
+
+def pareto(solver: GaitSolver, x_start, say) -> dict:
+    """Study (c): every winding x ratio of the lists above at 0.555 m/s, M_W = 20 W, 38 V, warm-started
+    from ``x_start``: Joule energy per metre against robot mass, and the Pareto front of the converged
+    designs."""
     catalogue = drives.load_catalogue()
     pairs = [(w, g) for w in WINDINGS for g in PARETO_GEARHEADS]
-    records, reference = [], None
+    records = []
     for start in range(0, len(pairs), BATCH):
         chunk = pairs[start:start + BATCH]
         say(f"(c) windings x ratios, designs {start + 1}-{start + len(chunk)} of {len(pairs)}")
         designs = [codesign.catalogue_design(w, g, catalogue=catalogue) for w, g in chunk]
-        warm = None if reference is None else np.tile(reference.x, (BATCH, 1))
-        solutions = codesign.solve_designs(solver, designs, SPEEDS[1], POWER_LIMIT, x0=warm, summary=say)
-        for (w, g), d, s in zip(chunk, designs, solutions):
-            records.append({"winding": w, "gearhead": g, **codesign.design_record(d, s)})
-            if (w, g) == (codesign.REFERENCE_MOTOR, codesign.REFERENCE_GEARHEAD):
-                reference = s
+        solutions = codesign.solve_designs(solver, designs, SPEEDS[1], POWER_LIMIT,
+                                           x0=np.tile(x_start, (len(chunk), 1)), summary=say)
+        records += [{"winding": w, "gearhead": g, **codesign.design_record(d, s)}
+                    for (w, g), d, s in zip(chunk, designs, solutions)]
     ok = [i for i, r in enumerate(records) if r["status"] == al.CONVERGED]
     front = pareto_front([(records[i]["total_mass_kg"], records[i]["joule_energy_per_metre_J_per_m"]) for i in ok])
-    if not _converged(reference):
-        raise RuntimeError(f"the paper's design found no gait ({reference.status}; {reference.violations})")
-    return {"designs": records, "pareto": [ok[i] for i in front]}, reference.x
+    return {"designs": records, "pareto": [ok[i] for i in front]}
 
 
 def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
@@ -162,25 +169,34 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
 
 
 def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dynamics="chain"), iterations: int = 5,
-                 progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
+                 progress: Callable[[str], None] | None = None, resume: bool = False,
+                 solver_name: str = "sqp") -> dict:
     """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png.
-    Each finished study is kept in ``out/stages`` (:func:`biped_jax.outputs.stage`); ``resume`` takes
-    those written with the same settings instead of solving them again."""
+    ``solver_name``: "sqp" (SLSQP, ``codesign.SOLVER_OPTIONS``, the default) or "al" (the batched
+    augmented Lagrangian, :data:`STUDY_OPTIONS`). Each finished study is kept in ``out/stages``
+    (:func:`biped_jax.outputs.stage`); ``resume`` takes those written with the same settings instead
+    of solving them again."""
     from biped_jax import codesign_plots
 
+    if solver_name not in ("sqp", "al"):
+        raise ValueError(f"solver must be 'sqp' or 'al', got {solver_name!r}")
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
-    solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)
-    results = {"settings": {"steps": settings.steps, "degree": settings.degree, "batch": BATCH,
-                            "torque_bound_Nm": settings.torque_bound, "dynamics": settings.dynamics}}
+    options = (codesign.SOLVER_OPTIONS if solver_name == "sqp"
+               else dataclasses.replace(GAIT_SOLVER_OPTIONS, **STUDY_OPTIONS))
+    solver = GaitSolver(settings, options)
+    results = {"settings": {"spans": settings.spans, "substeps": settings.substeps, "steps": settings.steps,
+                            "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,
+                            "dynamics": settings.dynamics, "solver": solver_name}}
     save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731
-    key = {"settings": dataclasses.asdict(settings), "iterations": iterations, "options": STUDY_OPTIONS}
+    key = {"settings": dataclasses.asdict(settings), "iterations": iterations, "options": dataclasses.asdict(options)}
     kept = lambda name, compute: outputs.stage(out, f"codesign_{name}", key, compute, resume, say)  # noqa: E731
-    say("compiling the gait problem (batch of 16); study (c) from heuristic starts")
-    results["pareto"], x_start = kept("pareto", lambda: pareto(solver, say))
+    say("compiling the gait problem; the paper's design from the heuristic start")
+    x_start = kept("reference", lambda: reference_gait(solver, say))
+    results["pareto"] = kept("pareto", lambda: pareto(solver, x_start, say))
     save()
     codesign_plots.plot_pareto(results["pareto"], out / "codesign_pareto.png")
-    results["mass_scaling"] = kept("mass_scaling", lambda: mass_scaling(solver, say))
+    results["mass_scaling"] = kept("mass_scaling", lambda: mass_scaling(solver, x_start, say))
     save()
     codesign_plots.plot_mass_scaling(results["mass_scaling"], out / "codesign_mass_scaling.png")
     results["speed_limits"] = kept("speed_limits", lambda: speed_limits(solver, x_start, say))

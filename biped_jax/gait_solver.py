@@ -129,10 +129,11 @@ class GaitSolution:
 def refinement_record(coarse_cost: float, fine: gait.GaitTrajectory, model: gait.GaitModel,
                       settings: gait.GaitSettings) -> dict:
     """The refinement check of one solution: J and each group's violation on the finer grid
-    ``settings`` (the same decision vector), and whether it passes."""
+    ``settings`` (the same decision vector), and whether it passes. J is the problem's own objective,
+    the Joule energy of ``model.drives`` (the integral of u^T u for the paper's ideal drives)."""
     groups = gait.violations(gait.constraint_groups(fine, model, settings))
     violations = {k: float(v) for k, v in groups.items()}
-    cost = float(gait.cost(fine))
+    cost = float(gait.joule_energy(fine, model.drives))
     change = abs(cost - coarse_cost) / max(abs(coarse_cost), 1e-12)
     limit = float(model.power_limit)
     failed = sorted(k for k, v in violations.items() if not v <= refined_tolerance(k, limit))
