@@ -79,8 +79,8 @@ def heuristic(solver):
 
 
 def test_report_rollouts_share_one_program_for_every_batch_size(solver, heuristic):
-    """GaitSolver.simulate runs 4 problems at a time (the last batch padded): one and five problems
-    give the rows a direct vmapped rollout gives, without compiling a program per batch size."""
+    """GaitSolver.simulate runs the problems one by one: one and five problems give the rows a direct
+    vmapped rollout gives, without compiling a program per batch size."""
     model, x, _ = heuristic
     xs = np.stack([x * (1 + 0.01 * k) for k in range(5)])
     models = gait_solver.stack_tree([dataclasses.replace(model, speed=jnp.asarray(0.5 + 0.01 * k))
@@ -88,7 +88,7 @@ def test_report_rollouts_share_one_program_for_every_batch_size(solver, heuristi
     direct = jax.jit(jax.vmap(lambda x_, m: gait.simulate(x_, m, solver.biped, SETTINGS)))(jnp.asarray(xs), models)
     before = solver._simulate._cache_size()
     five, one = solver.simulate(xs, models), solver.simulate(xs[:1], jax.tree.map(lambda a: a[:1], models))
-    assert before >= 1 and solver._simulate._cache_size() == before  # the fixture's batch of four
+    assert before == 1 and solver._simulate._cache_size() == before  # the fixture's rollouts
     assert five.u.shape == (5,) + direct.u.shape[1:]
     np.testing.assert_allclose(five.u, direct.u, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(one.q, np.asarray(direct.q)[:1], rtol=1e-12, atol=1e-12)
