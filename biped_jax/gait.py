@@ -345,7 +345,8 @@ def _assemble(theta, actuated):
 
 
 class _ChainDynamics:
-    """Mass matrix, bias force, stance force and site positions from :mod:`biped_jax.planar_chain`."""
+    """Mass matrix, bias force, stance force, site positions, the swing foot's motion and the
+    touchdown from :mod:`biped_jax.planar_chain` (closed forms, no MJX)."""
 
     def __init__(self, biped: hs.PlanarBiped):
         self.chain = planar_chain.PlanarChain.from_model(biped.pinned)
@@ -360,12 +361,18 @@ class _ChainDynamics:
         force = planar_chain.root_force(self.chain, self.pinned, kinematics, qdd)
         return force, planar_chain.site_positions(self.chain, self.pinned, kinematics, _SITES)
 
+    def swing_foot(self, q, qd):
+        return planar_chain.site_motion(self.chain, self.pinned, q, qd, "foot2")
+
+    def touchdown(self, q, qd):
+        return hs.chain_touchdown(self.chain, self.pinned, q, qd)
+
 
 class _MjxDynamics:
     """The same quantities from MJX's forward pipeline."""
 
     def __init__(self, biped: hs.PlanarBiped):
-        self.pinned = biped.pinned
+        self.biped, self.pinned = biped, biped.pinned
         self.template = mjx.make_data(biped.pinned)
         self.sites = jnp.array([mjx.name2id(biped.pinned, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name)
                                 for name in _SITES])
@@ -377,6 +384,12 @@ class _MjxDynamics:
     def outputs(self, q, qd, qdd, data):
         force = hs._stance_force(self.pinned, data.replace(qacc=qdd))
         return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
+
+    def swing_foot(self, q, qd):
+        return hs.swing_foot(self.pinned, q, qd)
+
+    def touchdown(self, q, qd):
+        return hs.touchdown(self.biped, q, qd)
 
 
 _SITES = ("foot2", "hip", "knee1", "knee2")
@@ -450,12 +463,11 @@ def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: Ga
         return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
 
     q, qd, qdd, u, force, positions = jax.vmap(outputs)(stance[:, 0], stance[:, 1], jnp.swapaxes(at_grid, 0, 1))
-    pinned = biped.pinned
-    _, foot_velocity = hs.swing_foot(pinned, q[-1], qd[-1])
+    _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
     return GaitTrajectory(
         t=jnp.asarray(s) * step_time, weights=jnp.asarray(simpson_weights(settings)) * step_time,
         q=q, qd=qd, qdd=qdd, u=u, ground_force=force, swing_foot=positions[:, 0], heights=positions[:, 1:, 1],
-        touchdown=hs.touchdown(biped, q[-1], qd[-1]), swing_foot_velocity=foot_velocity,
+        touchdown=dynamics.touchdown(q[-1], qd[-1]), swing_foot_velocity=foot_velocity,
         continuity=after[:-1, -1] - nodes[1:])
 
 

@@ -190,6 +190,18 @@ def site_positions(chain: PlanarChain, model, state: ChainState, names) -> jax.A
     return state.origin[bodies] + _rotate(state.angle[bodies], local)
 
 
+def site_motion(chain: PlanarChain, model, q: jax.Array, qd: jax.Array, name: str) -> tuple[jax.Array, jax.Array]:
+    """World (x, z) position (2,), m, and velocity (2,), m/s, of a named site at (q, qd)."""
+    def position(q_):
+        return site_positions(chain, model, kinematics(chain, model, q_, jnp.zeros_like(q_)), (name,))[0]
+    return jax.jvp(position, (q,), (qd,))
+
+
+def site_jacobian(chain: PlanarChain, model, q: jax.Array, name: str) -> jax.Array:
+    """d(site x, z)/dq of a named site, (2, n)."""
+    return jax.jacfwd(lambda q_: site_motion(chain, model, q_, jnp.zeros_like(q_), name)[0])(q)
+
+
 def actuated_force(chain: PlanarChain, u: jax.Array) -> jax.Array:
     """Generalised force of actuator torques u (n_actuators,) -> (n,), N m."""
     return jnp.zeros(chain.size, u.dtype).at[chain.actuated_dof].add(u)

@@ -16,15 +16,20 @@ SITES = ("foot1", "knee1", "hip", "knee2", "foot2")
 
 
 @pytest.fixture(scope="module")
-def designed(biped12):
-    """The pinned 12 kg biped with a design unlike the file's: other masses, drive masses at the
-    joints, armature and damping, so every parameter path is exercised."""
+def designed_biped(biped12):
+    """The 12 kg biped with a design unlike the file's: other masses, drive masses at the joints,
+    armature and damping, so every parameter path is exercised."""
     design = hs.planar_design("12kg")
     design = dataclasses.replace(design, link_mass=design.link_mass * jnp.array([0.8, 1.1, 1.3, 0.9, 1.2]),
                                  joint_armature=jnp.array([0.01, 0.02, 0.015, 0.03]),
                                  joint_damping=jnp.array([0.1, 0.2, 0.3, 0.4]),
                                  drive_mass=jnp.array([0.3, 0.2, 0.3, 0.2]))
-    return hs.with_design(biped12, design).pinned
+    return hs.with_design(biped12, design)
+
+
+@pytest.fixture(scope="module")
+def designed(designed_biped):
+    return designed_biped.pinned
 
 
 def test_structure_of_the_pinned_biped(biped12):
@@ -53,6 +58,26 @@ def test_every_quantity_equals_mjx(biped12, designed, seed):
     site_ids = [mjx.name2id(designed, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name) for name in SITES]
     np.testing.assert_allclose(planar_chain.site_positions(chain, designed, state, SITES),
                                data.site_xpos[jnp.array(site_ids)][:, jnp.array([0, 2])], atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_touchdown_and_swing_foot_equal_mjx(designed_biped, seed):
+    """The impact in the pinned chain's coordinates extended by the root's translation is MJX's impact
+    on the floating model: every field of the touchdown (impulse, velocities, relabelled state), and
+    the swing foot's motion, at random pre-impact states of a design with armature."""
+    chain = planar_chain.PlanarChain.from_model(designed_biped.pinned)
+    rng = np.random.default_rng(seed)
+    q = jnp.array([0.2, 0.3, -0.4, 0.5, 0.1]) + 0.1 * jnp.asarray(rng.normal(size=5))
+    qd = jnp.asarray(2 * rng.normal(size=5))
+    closed_form = hs.chain_touchdown(chain, designed_biped.pinned, q, qd)
+    reference = hs.touchdown(designed_biped, q, qd)
+    assert np.linalg.norm(reference.impulse) > 1.0  # a real impact
+    for field in dataclasses.fields(reference):
+        np.testing.assert_allclose(getattr(closed_form, field.name), getattr(reference, field.name),
+                                   rtol=1e-11, atol=1e-12, err_msg=field.name)
+    for mine, theirs in zip(planar_chain.site_motion(chain, designed_biped.pinned, q, qd, "foot2"),
+                            hs.swing_foot(designed_biped.pinned, q, qd)):
+        np.testing.assert_allclose(mine, theirs, atol=1e-13)
 
 
 @pytest.mark.slow
@@ -98,7 +123,10 @@ def test_gait_rollout_is_the_same_with_either_dynamics(biped12):
     for field in ("q", "qd", "qdd", "u", "ground_force", "swing_foot", "heights"):
         np.testing.assert_allclose(getattr(chain, field), getattr(reference, field), rtol=1e-9, atol=1e-9,
                                    err_msg=field)
-    np.testing.assert_allclose(chain.touchdown.impulse, reference.touchdown.impulse, atol=1e-9)
+    for field in dataclasses.fields(reference.touchdown):  # the closed-form impact against MJX's
+        np.testing.assert_allclose(getattr(chain.touchdown, field.name), getattr(reference.touchdown, field.name),
+                                   rtol=1e-9, atol=1e-9, err_msg=field.name)
+    np.testing.assert_allclose(chain.swing_foot_velocity, reference.swing_foot_velocity, atol=1e-9)
 
 
 def test_unknown_dynamics_is_rejected():
