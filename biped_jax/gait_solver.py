@@ -123,14 +123,23 @@ class GaitSolution:
     starts: list = dataclasses.field(default_factory=list)
 
 
+@functools.partial(jax.jit, static_argnames="settings")
+def grid_check(trajectory: gait.GaitTrajectory, model: gait.GaitModel, settings: gait.GaitSettings):
+    """Each constraint group's largest violation (its own unit) and the objective (the Joule energy of
+    ``model.drives``; the integral of u^T u for ideal drives) of one rollout on the grid ``settings``.
+    Compiled: one program per grid instead of an eager XLA program per operation and shape."""
+    groups = gait.constraint_groups(trajectory, model, settings)
+    return gait.violations(groups), gait.joule_energy(trajectory, model.drives)
+
+
 def refinement_record(coarse_cost: float, fine: gait.GaitTrajectory, model: gait.GaitModel,
                       settings: gait.GaitSettings) -> dict:
     """The refinement check of one solution: J and each group's violation on the finer grid
     ``settings`` (the same decision vector), and whether it passes. J is the problem's own objective,
     the Joule energy of ``model.drives`` (the integral of u^T u for the paper's ideal drives)."""
-    groups = gait.violations(gait.constraint_groups(fine, model, settings))
+    groups, cost = grid_check(fine, model, settings)
     violations = {k: float(v) for k, v in groups.items()}
-    cost = float(gait.joule_energy(fine, model.drives))
+    cost = float(cost)
     change = abs(cost - coarse_cost) / max(abs(coarse_cost), 1e-12)
     limit = float(model.power_limit)
     failed = sorted(k for k, v in violations.items() if not v <= refined_tolerance(k, limit))
@@ -307,12 +316,14 @@ class GaitSolver:
         if refined is None and self.check_refinement:
             refined = self.simulate_refined(result.x, batch)
         solutions = []
+        numeric = jax.tree.map(np.asarray, batch)  # strong float64 leaves: one grid_check program per grid
         for b, (name, model) in enumerate(zip(names, models)):
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
-            groups = gait.constraint_groups(trajectory, model, self.settings)
-            violations = {k: float(v) for k, v in gait.violations(groups).items()}
+            model_b = jax.tree.map(lambda a: a[b], numeric)
+            violations = {k: float(v) for k, v in grid_check(trajectory, model_b, self.settings)[0].items()}
             refinement = {"skipped": True, "passed": None} if refined is None else refinement_record(
-                float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined), model, self.refined_settings)
+                float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined), model_b,
+                self.refined_settings)
             finite = bool(np.all(np.isfinite(result.x[b])) and np.all(np.isfinite(trajectory.u)))
             status = classify(result.status[b], finite, violations, refinement, self.require_refinement)
             solutions.append(GaitSolution(
