@@ -351,7 +351,8 @@ def coarse_settings(settings: gait.GaitSettings, factor: int = 4) -> gait.GaitSe
 
 def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitModel],
                      families=gait.START_FAMILIES, coarse: GaitSolver | None = None,
-                     progress: Callable[[str, int, dict], None] | None = None) -> list[GaitSolution]:
+                     progress: Callable[[str, int, dict], None] | None = None,
+                     finished: Callable[[str, int], None] | None = None) -> list[GaitSolution]:
     """Globalisation by many starts (and optionally continuation in the reference space).
 
     Every model from every heuristic family in ``families`` (:data:`gait.START_FAMILIES`) in one
@@ -362,7 +363,8 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitM
     every family solved in the 4-span space reaches the same J = 4.62 family, which the fine space
     then keeps, so the coarse stage narrows the search). Each returned solution
     lists every start's outcome in ``starts``. No start comes from anywhere but the product's own
-    heuristics.
+    heuristics. ``progress(stage, iteration, row)`` follows the solver of each stage ("starts", then
+    "refined space"); ``finished(stage, problems)`` is called when a stage has solved all its problems.
     """
     count = len(families)
     first_solver = coarse or fine
@@ -371,6 +373,8 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitM
     tagged = (lambda stage: (lambda i, row: progress(stage, i, row))) if progress else (lambda stage: None)
     first = first_solver.solve([f"{n} / {f.name}" for n in names for f in families],
                                [m for m in models for _ in families], x0=x0, progress=tagged("starts"))
+    if finished:
+        finished("starts", len(first))
     chosen, spreads, best_solutions = [], [], []
     for b in range(len(models)):
         group = first[b * count:(b + 1) * count]
@@ -385,6 +389,8 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitM
         solutions = [dataclasses.replace(s, name=n) for s, n in zip(best_solutions, names)]
     else:
         solutions = fine.solve(names, models, x0=jnp.asarray(np.stack(chosen)), progress=tagged("refined space"))
+        if finished:
+            finished("refined space", len(solutions))
     for solution, spread in zip(solutions, spreads):
         solution.starts = spread
     return solutions

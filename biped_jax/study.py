@@ -263,16 +263,11 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
 
     say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
         f"spans), then the best in {settings.spans} spans ({'SLSQP' if method == 'sqp' else 'augmented Lagrangian'})")
-    starts = len(names) * len(families)
-
-    def multistart_report(part, i, row):
-        if part == "refined space" and row.get("problem", 0) == 0 and i <= 1:  # the coarse starts are all done
-            say("M1-M4 starts: done", task=("M1-M4 starts", starts, starts))
-        report(f"M1-M4 {part}")(i, row)
-    solutions = outputs.stage(out, "paper_models", key, lambda: done(
-        "M1-M4 refined space", gait_solver.solve_multistart(
-            solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
-            progress=multistart_report)), resume, say)
+    solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
+        solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
+        progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row),
+        finished=lambda part, count: say(f"M1-M4 {part}: done", task=(f"M1-M4 {part}", count, count))),
+        resume, say)
     say("the four models at M_W = 20 W")
     at_20 = outputs.stage(out, "at_20W", key, lambda: done("20 W", solver.solve(
         names, _models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),

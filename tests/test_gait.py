@@ -214,7 +214,10 @@ def test_multistart_reports_the_spread_and_keeps_the_best(solver):
     feasible one is kept and every start is listed."""
     model = gait.gait_model("12kg", 0.555, 20.0)
     families = gait.START_FAMILIES[:4]
-    solution, = gait_solver.solve_multistart(solver, ["M2"], [model], families=families)
+    ends = []
+    solution, = gait_solver.solve_multistart(solver, ["M2"], [model], families=families,
+                                             finished=lambda stage, count: ends.append((stage, count)))
+    assert ends == [("starts", 4)]  # one stage without a coarse space; its end is reported once
     assert [row["family"] for row in solution.starts] == [f.name for f in families]
     assert all(np.isfinite([row["cost"] for row in solution.starts]))
     assert solution.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT), solution.status
