@@ -250,10 +250,202 @@ def _gauss_newton_preconditioner(jac_r, jac_h, jac_g, g, lam_in, rho):
     return jax.scipy.linalg.solve_triangular(jnp.swapaxes(factor, 1, 2), identity, lower=False)
 
 
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class _Point:
+    """The augmented Lagrangian at a batch of iterates: its value and gradient (B,), (B, n), and the
+    objective and constraints it was made of, (B,), (B, m_h), (B, m_g)."""
+
+    value: jax.Array
+    f: jax.Array
+    h: jax.Array
+    g: jax.Array
+    grad: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class _OuterState:
+    """What the outer iterations carry, one entry per problem of the batch: the iterate and its
+    :class:`_Point`, the multipliers and penalty (jax arrays), and the bookkeeping (numpy) that decides
+    the status."""
+
+    x: jax.Array
+    point: _Point
+    lam_eq: jax.Array
+    lam_in: jax.Array
+    rho: jax.Array
+    active: np.ndarray             # still iterating
+    status: tuple                  # of str
+    outer_iterations: np.ndarray
+    gradients: np.ndarray          # gradient evaluations so far (a forward-difference Jacobian counts n)
+    previous_violation: np.ndarray  # the progress measure of the last outer iteration
+    stationarity: np.ndarray
+    inner_tolerance: np.ndarray
+    at_cap: np.ndarray             # outer iterations spent infeasible at the penalty cap
+    settled: np.ndarray            # consecutive feasible outer iterations with the cost settled
+    previous_cost: np.ndarray
+    best_violation: np.ndarray
+
+
+def _evaluate(lagrangian: Callable, x, params, lam_eq, lam_in, rho) -> _Point:
+    (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
+    return _Point(value, f, h, g, grad)
+
+
+def _where(mask, a, b):
+    """Per problem: a where ``mask`` (B,), else b (any trailing shape)."""
+    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
+
+
+def _line_search(evaluate_at: Callable, z, update, slope, point: _Point, inner_active: np.ndarray,
+                 options: SolverOptions):
+    """Backtracking (Armijo) along -update from z for every problem still in its inner loop.
+
+    ``evaluate_at(z) -> _Point``. Returns (z, point) with each problem's first accepted trial (or its
+    old values), the accepted mask (B,) and the gradient evaluations spent per problem (B,)."""
+    batch = z.shape[0]
+    step = jnp.ones(batch)
+    accepted = jnp.zeros(batch, dtype=bool)
+    evaluations = np.zeros(batch, dtype=int)
+    best_z, best = z, point
+    for _ in range(options.max_backtracks):
+        trial = z - step[:, None] * update
+        t = evaluate_at(trial)
+        evaluations += inner_active
+        ok = jnp.isfinite(t.value) & (t.value <= point.value - options.armijo * step * slope) & ~accepted
+        ok = ok & jnp.all(jnp.isfinite(t.grad), axis=-1)
+        best_z = _where(ok, trial, best_z)
+        best = jax.tree.map(lambda new, old: _where(ok, new, old), t, best)
+        accepted = accepted | ok
+        if bool(jnp.all(accepted | ~jnp.asarray(inner_active))):
+            break
+        step = jnp.where(accepted, step, 0.5 * step)
+    return best_z, best, accepted, evaluations
+
+
+def _descent_direction(direction_fn: Callable, grad_z, lbfgs_state, z):
+    """L-BFGS's step (to subtract) and its slope grad . step; the gradient itself where L-BFGS gives
+    no descent direction or a non-finite one."""
+    update, lbfgs_state = direction_fn(grad_z, lbfgs_state, z)
+    slope = jnp.sum(grad_z * update, axis=-1)
+    bad = ~(slope > 0) | ~jnp.all(jnp.isfinite(update), axis=-1)
+    update = jnp.where(bad[:, None], grad_z, update)
+    slope = jnp.where(bad, jnp.sum(grad_z * grad_z, axis=-1), slope)
+    return update, slope, lbfgs_state
+
+
+def _preconditioner(compiled: CompiledProblem, state: _OuterState, params, identity):
+    """The Gauss-Newton change of variables at the state's iterate (the identity without residuals or
+    where it is not finite) and the gradient evaluations it cost per problem."""
+    if compiled.jacobian is None:
+        return identity, np.zeros(state.x.shape[0], dtype=int)
+    jac_r, jac_h, jac_g = compiled.jacobian(state.x, params)
+    precondition = _gauss_newton_preconditioner(jac_r, jac_h, jac_g, state.point.g, state.lam_in, state.rho)
+    finite = jnp.all(jnp.isfinite(precondition), axis=(1, 2))[:, None, None]
+    return jnp.where(finite, precondition, identity), state.active * state.x.shape[1]
+
+
+def _inner_solve(state: _OuterState, params, compiled: CompiledProblem, lbfgs, options: SolverOptions,
+                 identity) -> tuple[_OuterState, np.ndarray]:
+    """Minimises the augmented Lagrangian at fixed multipliers and penalty (L-BFGS in preconditioned
+    coordinates x = x_ref + P z, restarted with a fresh P every ``precondition_every`` iterations).
+    Problems leave one by one (gradient below their inner tolerance, or the line search stalled) and
+    wait, frozen, for the others, so a finished problem never forces extra line-search trials.
+    Returns the state at the new iterates and the scaled gradient norm per problem."""
+    init, direction_fn = lbfgs
+    inner_active = state.active.copy()
+    x, point, gradients = state.x, state.point, state.gradients.copy()
+    evaluate = lambda x_: _evaluate(compiled.value_and_grad, x_, params, state.lam_eq, state.lam_in,  # noqa: E731
+                                    state.rho)
+    gradient_norm = np.zeros(x.shape[0])
+    for inner in range(options.max_inner):
+        if inner == 0 or (compiled.jacobian is not None and inner % options.precondition_every == 0):
+            precondition, spent = _preconditioner(compiled, dataclasses.replace(state, x=x, point=point),
+                                                  params, identity)
+            gradients += spent
+            x_ref, z = x, jnp.zeros_like(x)
+            lbfgs_state = init(z)
+            grad_z = jnp.einsum("bnm,bn->bm", precondition, point.grad)
+        update, slope, lbfgs_state = _descent_direction(direction_fn, grad_z, lbfgs_state, z)
+        z_new, new, accepted, spent = _line_search(
+            lambda z_: evaluate(x_ref + jnp.einsum("bnm,bm->bn", precondition, z_)),
+            z, update, slope, point, inner_active, options)
+        gradients += spent
+        frozen = jnp.asarray(~inner_active)
+        z = _where(frozen, z, z_new)
+        point = jax.tree.map(lambda old, new_: _where(frozen, old, new_), point, new)
+        grad_z = jnp.einsum("bnm,bn->bm", precondition, point.grad)
+        x = x_ref + jnp.einsum("bnm,bm->bn", precondition, z)
+        gradient_norm = np.asarray(jnp.max(jnp.abs(point.grad), axis=-1) / jnp.maximum(1.0, jnp.abs(point.f)))
+        inner_active &= ~((gradient_norm <= state.inner_tolerance) | ~np.asarray(accepted))
+        if not inner_active.any():
+            break
+    return dataclasses.replace(state, x=x, point=point, gradients=gradients), gradient_norm
+
+
+def _update_multipliers(state: _OuterState, gradient_norm: np.ndarray, options: SolverOptions):
+    """Multiplier and penalty updates after an inner solve (Nocedal & Wright, Framework 17.3), for the
+    active problems. Progress is measured with complementarity, max(g, -lambda/rho) (Birgin & Martinez,
+    Practical Augmented Lagrangian Methods, 2014): a strictly feasible inequality with a positive
+    multiplier is not converged. Returns the new state and the progress measure (B,)."""
+    h, g, lam_in, rho, active = state.point.h, state.point.g, state.lam_in, state.rho, state.active
+    measure = np.asarray(_violation(h, jnp.abs(jnp.maximum(g, -lam_in / rho[:, None]))))
+    act = jnp.asarray(active)[:, None]
+    lam_eq = jnp.where(act, state.lam_eq + rho[:, None] * h, state.lam_eq)
+    lam_in = jnp.where(act, jnp.maximum(0.0, lam_in + rho[:, None] * g), lam_in)
+    grow = active & (measure > 0.25 * state.previous_violation) & (measure > 10 * options.tolerance)
+    if options.grow_after_inner_solved:
+        # an inner problem cut short by max_inner says nothing about the penalty being too small:
+        # growing it then only worsens the conditioning of the next one (Conn, Gould & Toint,
+        # LANCELOT, 1992: rho grows only after an inner problem solved to its tolerance)
+        grow &= gradient_norm <= state.inner_tolerance
+    rho = jnp.where(jnp.asarray(grow), jnp.minimum(rho * options.penalty_growth, options.penalty_max), rho)
+    return dataclasses.replace(
+        state, lam_eq=lam_eq, lam_in=lam_in, rho=rho,
+        stationarity=np.where(active, gradient_norm, state.stationarity),
+        previous_violation=np.where(active, measure, state.previous_violation),
+        outer_iterations=state.outer_iterations + active,
+        inner_tolerance=np.where(active, np.maximum(0.1 * state.inner_tolerance, 0.3 * options.stationarity),
+                                 state.inner_tolerance)), measure
+
+
+def _classify(state: _OuterState, measure: np.ndarray, violation: np.ndarray, options: SolverOptions) -> _OuterState:
+    """Ends the problems that are done: ``diverged`` (non-finite), ``converged`` (feasible with
+    complementarity, and stationary or with the cost settled), infeasible or stalled at the penalty
+    cap with the violation no longer falling; the others stay active."""
+    cost = np.asarray(state.point.f)
+    finite = np.asarray(jnp.all(jnp.isfinite(state.x), axis=-1)) & np.isfinite(cost)
+    change = np.abs(cost - state.previous_cost) / np.maximum(1.0, np.abs(cost))
+    active = state.active.copy()
+    settled = np.where(active & (measure <= options.tolerance) & (change <= options.acceptable_change),
+                       state.settled + 1, np.where(active, 0, state.settled))
+    status, at_cap, best_violation = list(state.status), state.at_cap.copy(), state.best_violation.copy()
+    rho = np.asarray(state.rho)
+    for b in np.flatnonzero(active):
+        if not finite[b]:
+            status[b], active[b] = DIVERGED, False
+        elif measure[b] <= options.tolerance and (
+                state.stationarity[b] <= options.stationarity
+                or (options.acceptable_change > 0 and settled[b] >= options.acceptable_iterations)):
+            status[b], active[b] = CONVERGED, False
+        elif rho[b] >= options.penalty_max and violation[b] > options.tolerance:
+            at_cap[b] += 1
+            # Penalty at its cap and the violation no longer falling: no feasible point nearby.
+            if state.stationarity[b] <= options.stationarity or (
+                    at_cap[b] >= 3 and violation[b] > 0.9 * best_violation[b]):
+                status[b], active[b] = _at_cap(violation[b], options), False
+        best_violation[b] = min(best_violation[b], violation[b])
+    return dataclasses.replace(state, active=active, status=tuple(status), settled=settled, at_cap=at_cap,
+                               best_violation=best_violation,
+                               previous_cost=np.where(state.active, cost, state.previous_cost))
+
+
 def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = SolverOptions(),
           compiled: CompiledProblem | None = None,
           progress: Callable[[int, dict], None] | None = None) -> SolveResult:
-    """Solves a batch of problems.
+    """Solves a batch of problems: outer iterations of an inner solve (:func:`_inner_solve`), the
+    multiplier update (:func:`_update_multipliers`) and the status (:func:`_classify`) over a frozen
+    :class:`_OuterState`.
 
     Args:
       problem: f, h, g (and optionally the objective's residuals).
@@ -265,7 +457,6 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     """
     started = time.perf_counter()
     compiled = compiled or compile_problem(problem)
-    lagrangian = compiled.value_and_grad
     x = jnp.asarray(x0)
     batch, size = x.shape
     # optax caps the first step of a fresh L-BFGS at unit length; in Gauss-Newton-preconditioned
@@ -273,139 +464,47 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     # short gradient step (see SolverOptions.cap_first_step).
     optimiser = optax.scale_by_lbfgs(memory_size=options.memory,
                                      scale_init_precond=options.cap_first_step or compiled.jacobian is None)
-    init = jax.jit(jax.vmap(optimiser.init))
-    direction_fn = jax.jit(jax.vmap(lambda g, s, x_: optimiser.update(g, s, x_)))
+    lbfgs = (jax.jit(jax.vmap(optimiser.init)), jax.jit(jax.vmap(lambda g, s, x_: optimiser.update(g, s, x_))))
+    identity = jnp.broadcast_to(jnp.eye(size, dtype=x.dtype), (batch, size, size))
 
     rho = jnp.full((batch,), options.penalty_initial)
     _, h_shape, g_shape = jax.eval_shape(problem.evaluate, x[0], jax.tree.map(lambda a: a[0], params))
-    h_size, g_size = h_shape.shape[0], g_shape.shape[0]
-    lam_eq, lam_in = jnp.zeros((batch, h_size)), jnp.zeros((batch, g_size))
-    (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
-    gradients = np.ones(batch, dtype=int)
-    active = np.ones(batch, dtype=bool)
-    status = [ITERATION_LIMIT] * batch
-    outer_iterations = np.zeros(batch, dtype=int)
-    previous_violation = np.asarray(_violation(h, g))
-    stationarity = np.full(batch, np.inf)
+    lam_eq, lam_in = jnp.zeros((batch, h_shape.shape[0])), jnp.zeros((batch, g_shape.shape[0]))
+    point = _evaluate(compiled.value_and_grad, x, params, lam_eq, lam_in, rho)
+    state = _OuterState(
+        x=x, point=point, lam_eq=lam_eq, lam_in=lam_in, rho=rho, active=np.ones(batch, dtype=bool),
+        status=(ITERATION_LIMIT,) * batch, outer_iterations=np.zeros(batch, dtype=int),
+        gradients=np.ones(batch, dtype=int), previous_violation=np.asarray(_violation(point.h, point.g)),
+        stationarity=np.full(batch, np.inf), inner_tolerance=np.full(batch, 1.0),
+        at_cap=np.zeros(batch, dtype=int), settled=np.zeros(batch, dtype=int),
+        previous_cost=np.full(batch, np.nan), best_violation=np.full(batch, np.inf))
     history = []
-    inner_tolerance = np.full(batch, 1.0)
-    identity = jnp.broadcast_to(jnp.eye(size, dtype=x.dtype), (batch, size, size))
-    at_cap = np.zeros(batch, dtype=int)  # outer iterations spent infeasible at the penalty cap
-    settled = np.zeros(batch, dtype=int)  # consecutive feasible outer iterations with f settled
-    previous_cost = np.full(batch, np.nan)
-    best_violation = np.full(batch, np.inf)
-
     for outer in range(options.max_outer):
         if outer:  # the multipliers or the penalty changed: a new inner objective
-            (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
-            gradients += active
-        # Problems leave the inner loop one by one (inner optimum reached or line search stalled) and
-        # wait, frozen, for the others, so a finished problem never forces extra line-search trials.
-        inner_active = active.copy()
-        for _inner in range(options.max_inner):
-            if _inner == 0 or (compiled.jacobian is not None and _inner % options.precondition_every == 0):
-                # (re)start L-BFGS in fresh preconditioned coordinates x = x_ref + P z
-                precondition = identity
-                if compiled.jacobian is not None:
-                    jac_r, jac_h, jac_g = compiled.jacobian(x, params)
-                    gradients += active * size  # counted as gradients: n forward evaluations
-                    precondition = _gauss_newton_preconditioner(jac_r, jac_h, jac_g, g, lam_in, rho)
-                    precondition = jnp.where(
-                        jnp.all(jnp.isfinite(precondition), axis=(1, 2))[:, None, None], precondition,
-                        identity)
-                x_ref, z = x, jnp.zeros_like(x)
-                state = init(z)
-                grad_z = jnp.einsum("bnm,bn->bm", precondition, grad)
-            update, state = direction_fn(grad_z, state, z)
-            slope = jnp.sum(grad_z * update, axis=-1)  # the step is -update
-            bad = ~(slope > 0) | ~jnp.all(jnp.isfinite(update), axis=-1)
-            update = jnp.where(bad[:, None], grad_z, update)
-            slope = jnp.where(bad, jnp.sum(grad_z * grad_z, axis=-1), slope)
-            step = jnp.ones(batch)
-            accepted = jnp.zeros(batch, dtype=bool)
-            new = (z, value, f, h, g, grad)
-            for _ in range(options.max_backtracks):
-                trial = z - step[:, None] * update
-                x_trial = x_ref + jnp.einsum("bnm,bm->bn", precondition, trial)
-                (t_value, (t_f, t_h, t_g)), t_grad = lagrangian(x_trial, params, lam_eq, lam_in, rho)
-                gradients += inner_active
-                ok = jnp.isfinite(t_value) & (t_value <= value - options.armijo * step * slope) & ~accepted
-                ok = ok & jnp.all(jnp.isfinite(t_grad), axis=-1)
-                pick = lambda a, b: jnp.where(ok.reshape(ok.shape + (1,) * (a.ndim - 1)), b, a)  # noqa: E731
-                new = tuple(pick(a, b) for a, b in zip(new, (trial, t_value, t_f, t_h, t_g, t_grad)))
-                accepted = accepted | ok
-                if bool(jnp.all(accepted | ~jnp.asarray(inner_active))):
-                    break
-                step = jnp.where(accepted, step, 0.5 * step)
-            frozen = jnp.asarray(~inner_active)
-            keep = lambda a, b: jnp.where(frozen.reshape(frozen.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
-            z, value, f, h, g, grad = (keep(a, b) for a, b in zip((z, value, f, h, g, grad), new))
-            grad_z = jnp.einsum("bnm,bn->bm", precondition, grad)
-            x = x_ref + jnp.einsum("bnm,bm->bn", precondition, z)
-            gradient_norm = np.asarray(jnp.max(jnp.abs(grad), axis=-1) / jnp.maximum(1.0, jnp.abs(f)))
-            stalled = ~np.asarray(accepted)
-            inner_active &= ~((gradient_norm <= inner_tolerance) | stalled)
-            if not inner_active.any():
-                break
-        # multiplier and penalty updates (Nocedal & Wright, Framework 17.3). Progress is measured
-        # with complementarity, max(g, -lambda/rho) (Birgin & Martinez, Practical Augmented Lagrangian
-        # Methods, 2014): a strictly feasible inequality with a positive multiplier is not converged.
-        violation = np.asarray(_violation(h, g))
-        measure = np.asarray(_violation(h, jnp.abs(jnp.maximum(g, -lam_in / rho[:, None]))))
-        stationarity = np.where(active, gradient_norm, stationarity)
-        lam_eq_new = lam_eq + rho[:, None] * h
-        lam_in_new = jnp.maximum(0.0, lam_in + rho[:, None] * g)
-        act = jnp.asarray(active)
-        lam_eq = jnp.where(act[:, None], lam_eq_new, lam_eq)
-        lam_in = jnp.where(act[:, None], lam_in_new, lam_in)
-        grow = active & (measure > 0.25 * previous_violation) & (measure > 10 * options.tolerance)
-        if options.grow_after_inner_solved:
-            # an inner problem cut short by max_inner says nothing about the penalty being too small:
-            # growing it then only worsens the conditioning of the next one (Conn, Gould & Toint,
-            # LANCELOT, 1992: rho grows only after an inner problem solved to its tolerance)
-            grow &= gradient_norm <= inner_tolerance
-        rho = jnp.where(jnp.asarray(grow), jnp.minimum(rho * options.penalty_growth, options.penalty_max), rho)
-        previous_violation = np.where(active, measure, previous_violation)
-        outer_iterations += active
-        inner_tolerance = np.where(active, np.maximum(0.1 * inner_tolerance, 0.3 * options.stationarity),
-                                   inner_tolerance)
-        finite = np.asarray(jnp.all(jnp.isfinite(x), axis=-1)) & np.isfinite(np.asarray(f))
-        row = {"cost": np.asarray(f), "violation": violation, "penalty": np.asarray(rho),
-               "gradients": gradients.copy(), "stationarity": stationarity.copy(), "x": np.asarray(x)}
+            state = dataclasses.replace(
+                state, point=_evaluate(compiled.value_and_grad, state.x, params, state.lam_eq, state.lam_in, state.rho),
+                gradients=state.gradients + state.active)
+        state, gradient_norm = _inner_solve(state, params, compiled, lbfgs, options, identity)
+        violation = np.asarray(_violation(state.point.h, state.point.g))
+        state, measure = _update_multipliers(state, gradient_norm, options)
+        row = {"cost": np.asarray(state.point.f), "violation": violation, "penalty": np.asarray(state.rho),
+               "gradients": state.gradients.copy(), "stationarity": state.stationarity.copy(),
+               "x": np.asarray(state.x)}
         history.append(row)
         if progress:
             progress(outer, row)
-        cost = np.asarray(f)
-        change = np.abs(cost - previous_cost) / np.maximum(1.0, np.abs(cost))
-        settled = np.where(active & (measure <= options.tolerance) & (change <= options.acceptable_change),
-                           settled + 1, np.where(active, 0, settled))
-        previous_cost = np.where(active, cost, previous_cost)
-        for b in range(batch):
-            if not active[b]:
-                continue
-            if not finite[b]:
-                status[b], active[b] = DIVERGED, False
-            elif measure[b] <= options.tolerance and (
-                    stationarity[b] <= options.stationarity
-                    or (options.acceptable_change > 0 and settled[b] >= options.acceptable_iterations)):
-                status[b], active[b] = CONVERGED, False
-            elif float(rho[b]) >= options.penalty_max and violation[b] > options.tolerance:
-                at_cap[b] += 1
-                # Penalty at its cap and the violation no longer falling: no feasible point nearby.
-                if stationarity[b] <= options.stationarity or (
-                        at_cap[b] >= 3 and violation[b] > 0.9 * best_violation[b]):
-                    status[b], active[b] = _at_cap(violation[b], options), False
-            best_violation[b] = min(best_violation[b], violation[b])
-        if not active.any():
+        state = _classify(state, measure, violation, options)
+        if not state.active.any():
             break
-    for b in range(batch):
-        if active[b] and float(rho[b]) >= options.penalty_max and previous_violation[b] > options.tolerance:
-            status[b] = _at_cap(previous_violation[b], options)
-    return SolveResult(x=np.asarray(x), cost=np.asarray(f), equalities=np.asarray(h),
+    status = [_at_cap(state.previous_violation[b], options)
+              if state.active[b] and float(state.rho[b]) >= options.penalty_max
+              and state.previous_violation[b] > options.tolerance else state.status[b] for b in range(batch)]
+    h, g = state.point.h, state.point.g
+    return SolveResult(x=np.asarray(state.x), cost=np.asarray(state.point.f), equalities=np.asarray(h),
                        inequalities=np.asarray(g), violation=np.asarray(_violation(h, g)),
-                       stationarity=stationarity, status=status, outer_iterations=outer_iterations,
-                       gradients=gradients, wall_time_s=time.perf_counter() - started, history=history,
-                       multipliers_eq=np.asarray(lam_eq), multipliers_in=np.asarray(lam_in))
+                       stationarity=state.stationarity, status=status, outer_iterations=state.outer_iterations,
+                       gradients=state.gradients, wall_time_s=time.perf_counter() - started, history=history,
+                       multipliers_eq=np.asarray(state.lam_eq), multipliers_in=np.asarray(state.lam_in))
 
 
 def _at_cap(violation: float, options: SolverOptions) -> str:
