@@ -29,3 +29,18 @@ def test_model_loading_snippet():
     exec(compile(_python_blocks()[1], "README models", "exec"), namespace)
     assert namespace["mj_model"].nu == 5
     assert namespace["mjx_model"].nv == 22
+
+
+def test_gait_snippet_solves_m2_within_the_power_limit():
+    namespace = {}
+    exec(compile(_python_blocks()[2], "README gait", "exec"), namespace)
+    m2 = namespace["m2"]
+    assert m2.status == "converged", (m2.status, m2.violations)
+    assert 1.0 < m2.cost < 10.0  # J of M2 in small spaces: 2.8 (48 spans) to about 4.5 (4 spans)
+    assert np.max(np.abs(m2.trajectory.joint_power)) <= 20.0 + 1e-3
+
+
+def test_every_public_name_imports():
+    import biped_jax
+    for name in biped_jax.__all__:
+        assert getattr(biped_jax, name) is not None, name
