@@ -90,7 +90,7 @@ class DriveDesign:
 
 def reflected_inertia(design: DriveDesign) -> jax.Array:
     """N^2 (J_rotor + J_gear) per joint, kg m^2, (4,): the drive's inertia seen at the joint."""
-    return design.ratio**2 * (design.rotor_inertia + design.gear_inertia)
+    return drive_model.reflected_inertia(design.ratio, design.rotor_inertia, design.gear_inertia)
 
 
 def robot_design(design: DriveDesign) -> Design:
@@ -105,10 +105,13 @@ def robot_design(design: DriveDesign) -> Design:
 
 
 def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
-    """The drives as the gait problem sees them (objective: Joule energy; constraint: voltage)."""
+    """The drives as the gait problem sees them (objective: Joule energy; constraint: voltage; the
+    gear's torque is bounded by the gait's own torque bound, so no gear limit here)."""
     return drive_model.JointDrives(ratio=design.ratio, efficiency=design.gear_efficiency,
                                    torque_constant=design.torque_constant, resistance=design.resistance,
-                                   supply_voltage=design.supply_voltage)
+                                   supply_voltage=design.supply_voltage,
+                                   gear_torque_limit=jnp.full_like(design.ratio, jnp.inf),
+                                   reflected_inertia=reflected_inertia(design))
 
 
 def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait.GaitModel:

@@ -41,61 +41,11 @@ DONALD_MOTOR = "RE25-118752"
 DONALD_GEAR = "GP32A-245.96"
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class Drive:
-    """A motor behind a gear at every actuated joint, in SI (a pytree: batchable).
-
-    Attributes:
-      ratio: N. efficiency: eta of the gear. torque_constant: k_t, N m/A. resistance: R, ohm.
-      supply_voltage: V_s, V. gear_torque_limit: intermittent output torque, N m.
-      reflected_inertia: N^2 (J_rotor + J_gear), kg m^2.
-    """
-
-    ratio: jax.Array
-    efficiency: jax.Array
-    torque_constant: jax.Array
-    resistance: jax.Array
-    supply_voltage: jax.Array
-    gear_torque_limit: jax.Array
-    reflected_inertia: jax.Array
-
-
 def donald_drive(motor: str = DONALD_MOTOR, gear: str = DONALD_GEAR,
-                 supply_voltage: float = DONALD_SUPPLY_VOLTAGE) -> Drive:
-    """The drive of every DONALD joint from the catalogue; raises ValueError naming an unknown part."""
-    catalogue = drives.load_catalogue()
-    if motor not in catalogue.motors:
-        raise ValueError(f"unknown motor {motor!r}; known: {', '.join(catalogue.motors)}")
-    if gear not in catalogue.gearheads:
-        raise ValueError(f"unknown gearhead {gear!r}; known: {', '.join(catalogue.gearheads)}")
-    m, g = catalogue.motors[motor], catalogue.gearheads[gear]
-    return Drive(ratio=jnp.asarray(g.ratio), efficiency=jnp.asarray(g.efficiency),
-                 torque_constant=jnp.asarray(m.torque_constant), resistance=jnp.asarray(m.resistance),
-                 supply_voltage=jnp.asarray(float(supply_voltage)),
-                 gear_torque_limit=jnp.asarray(g.intermittent_torque),
-                 reflected_inertia=jnp.asarray(g.ratio**2 * (m.rotor_inertia + g.inertia)))
-
-
-def torque_limits(drive: Drive, joint_speed: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Lowest and highest joint torque the drive can give at ``joint_speed`` (rad/s), N m.
-
-    Motor torque within k_t (+-V_s - k_t omega_m) / R (the speed-torque lines at +-V_s); through the
-    gear with efficiency eta when the motor drives the load and 1/eta when the load drives the motor
-    (eq. 2.3 inverted); clipped to the gear's intermittent output torque.
-    """
-    omega_m = drives.motor_speed(joint_speed, drive.ratio)
-    back_emf = drive.torque_constant * omega_m
-    motor_high = drive.torque_constant * (drive.supply_voltage - back_emf) / drive.resistance
-    motor_low = drive.torque_constant * (-drive.supply_voltage - back_emf) / drive.resistance
-
-    def to_joint(motor_torque):
-        motoring = motor_torque * joint_speed >= 0
-        factor = jnp.where(motoring, drive.efficiency, 1 / drive.efficiency)
-        return motor_torque * drive.ratio * factor
-
-    limit = drive.gear_torque_limit
-    return jnp.clip(to_joint(motor_low), -limit, limit), jnp.clip(to_joint(motor_high), -limit, limit)
+                 supply_voltage: float = DONALD_SUPPLY_VOLTAGE) -> drives.JointDrives:
+    """The drive of every DONALD joint from the catalogue (fields of shape ()); raises ValueError
+    naming an unknown part."""
+    return drives.catalogue_drives(motor, gear, supply_voltage)
 
 
 @jax.tree_util.register_dataclass
@@ -111,11 +61,11 @@ DEFAULT_GAINS = Gains(stiffness=jnp.array([60.0, 40.0, 40.0, 60.0, 20.0]),
                       damping=jnp.array([3.0, 2.0, 2.0, 3.0, 1.0]))
 
 
-def pd_torque(gains: Gains, drive: Drive, q, qd, q_ref, qd_ref) -> tuple[jax.Array, jax.Array, jax.Array]:
+def pd_torque(gains: Gains, drive: drives.JointDrives, q, qd, q_ref, qd_ref) -> tuple[jax.Array, jax.Array, jax.Array]:
     """(applied torque, commanded torque, (low, high) drive limits), shapes (5,), (5,), (2, 5): the PD
     command clipped to what the drive gives at the joint speed ``qd``."""
     command = gains.stiffness * (q_ref - q) + gains.damping * (qd_ref - qd)
-    low, high = torque_limits(drive, qd)
+    low, high = drives.torque_limits(drive, qd)
     return jnp.clip(command, low, high), command, jnp.stack([low, high])
 
 
@@ -199,7 +149,7 @@ def reference(poses: jax.Array, times: jax.Array, t: jax.Array) -> tuple[jax.Arr
 
 # ----------------------------------------------------------------------------- simulation
 
-def load_donald(drive: Drive | None = None, spec: DonaldSpec | None = None):
+def load_donald(drive: drives.JointDrives | None = None, spec: DonaldSpec | None = None):
     """(MuJoCo model, MJX model) of DONALD with the drive's reflected inertia as joint armature."""
     mj_model = robots.load_mj_model("donald") if spec is None else mujoco.MjModel.from_xml_string(
         __import__("biped_jax.mjcf", fromlist=["donald_xml"]).donald_xml(spec))
@@ -253,7 +203,7 @@ def walker(mj_model: mujoco.MjModel, steps: int, duration: float, record_every: 
     joint_v = np.array([mj_model.joint(j).dofadr[0] for j in DONALD_ACTUATED_JOINTS])
 
     @jax.jit
-    def walk(model, gait: DonaldGait, gains: Gains, drive: Drive) -> DonaldRun:
+    def walk(model, gait: DonaldGait, gains: Gains, drive: drives.JointDrives) -> DonaldRun:
         poses, times = keyframes(gait, steps)
 
         def physics_step(data, _):
@@ -325,7 +275,7 @@ def support_phases(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> tuple[np.
     return touching, margin
 
 
-def walk_report(run: DonaldRun, drive: Drive, gains: Gains, spec: DonaldSpec = DonaldSpec()) -> dict:
+def walk_report(run: DonaldRun, drive: drives.JointDrives, gains: Gains, spec: DonaldSpec = DonaldSpec()) -> dict:
     """Steps, distance, falls, static-stability margin and the joints against the drive's limits."""
     touching, margin = support_phases(run, spec)
     single = ~np.isnan(margin)

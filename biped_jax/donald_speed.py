@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import augmented_lagrangian as al
-from biped_jax import donald
+from biped_jax import donald, drives
 
 STEPS = 3
 STABILITY_MARGIN = 0.01  # m
@@ -55,7 +55,7 @@ DURATION = donald.SETTLE_TIME + STEPS * 1.1 * float(donald.DEFAULT_GAIT.step_tim
 DIFFERENCE_STEP = 0.03
 
 
-def differentiable_donald(drive: donald.Drive):
+def differentiable_donald(drive: drives.JointDrives):
     """DONALD with one constraint-solver iteration per step: MJX's solver loop is a while_loop, which
     reverse mode cannot differentiate; a single Newton iteration (warm-started) is a scan
     (mjx-notes.md). The walk is re-checked with the full solver after optimising."""
@@ -75,7 +75,7 @@ def _value_at(t: jax.Array, samples_t: jax.Array, values: jax.Array) -> jax.Arra
     return jnp.interp(t, samples_t, values)
 
 
-def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive: donald.Drive,
+def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive: drives.JointDrives,
                           spec: donald.DonaldSpec = donald.DonaldSpec()):
     """(minus the speed in units of 0.01 m/s, no equalities, inequalities <= 0), each inequality group
     divided by its scale (margin 10 mm, contact height 2 mm, clearance 3 mm, pelvis 10 mm; bounds as

@@ -9,7 +9,7 @@ from typing import Callable
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax import donald
+from biped_jax import donald, drives
 from biped_jax.drives import RPM
 from biped_jax import outputs
 
@@ -19,7 +19,7 @@ FINAL_STAND = 1.0
 
 def walk(steps: int = 8, gait: donald.DonaldGait = donald.DEFAULT_GAIT,
          gains: donald.Gains = donald.DEFAULT_GAINS,
-         duration: float | None = None) -> tuple[donald.DonaldRun, donald.Drive]:
+         duration: float | None = None) -> tuple[donald.DonaldRun, drives.JointDrives]:
     """Simulates ``steps`` steps of ``gait`` and a final stand in MJX, for ``duration`` s (default: the
     gait's steps plus :data:`FINAL_STAND`; walks of one duration share one compiled program)."""
     if steps < 1:
@@ -73,7 +73,7 @@ def plot_walk(run: donald.DonaldRun, path: Path) -> None:
     plt.close(figure)
 
 
-def plot_torque_speed(run: donald.DonaldRun, drive: donald.Drive, path: Path) -> None:
+def plot_torque_speed(run: donald.DonaldRun, drive: drives.JointDrives, path: Path) -> None:
     """Joint torque against joint speed for every joint, with the drive's limits (speed-torque lines
     at +-V_s through the gear, and the gear's torque limit)."""
     from biped_jax.gait_report import _pyplot
@@ -81,7 +81,7 @@ def plot_torque_speed(run: donald.DonaldRun, drive: donald.Drive, path: Path) ->
     speed, torque = np.asarray(run.joint_speed), np.asarray(run.torque)
     figure, axes = plt.subplots(1, 5, figsize=(18, 4), sharey=True, constrained_layout=True)
     line_speed = np.linspace(-5.0, 5.0, 201)
-    low, high = (np.asarray(a) for a in donald.torque_limits(drive, jnp.asarray(line_speed)))
+    low, high = (np.asarray(a) for a in drives.torque_limits(drive, jnp.asarray(line_speed)))
     for k, (axis, name) in enumerate(zip(axes, donald.DONALD_ACTUATED_JOINTS)):
         axis.plot(line_speed / RPM, high, "r-", lw=1, label=f"drive limit at {float(drive.supply_voltage):g} V")
         axis.plot(line_speed / RPM, low, "r-", lw=1)

@@ -155,22 +155,23 @@ def motor_speed(joint_speed: jax.Array, ratio) -> jax.Array:
     return ratio * joint_speed
 
 
-def current(torque_at_motor: jax.Array, motor: Motor) -> jax.Array:
-    """Winding current i = T_m / k_t, A."""
+def current(torque_at_motor: jax.Array, motor: Motor | JointDrives) -> jax.Array:
+    """Winding current i = T_m / k_t, A (``motor``: a catalogue :class:`Motor` or the
+    :class:`JointDrives` of a design; these electrical laws read its k_t and R)."""
     return torque_at_motor / motor.torque_constant
 
 
-def joule_loss(torque_at_motor: jax.Array, motor: Motor) -> jax.Array:
+def joule_loss(torque_at_motor: jax.Array, motor: Motor | JointDrives) -> jax.Array:
     """Joule loss P_J = R i^2, W."""
     return motor.resistance * current(torque_at_motor, motor) ** 2
 
 
-def voltage(torque_at_motor: jax.Array, speed_at_motor: jax.Array, motor: Motor) -> jax.Array:
+def voltage(torque_at_motor: jax.Array, speed_at_motor: jax.Array, motor: Motor | JointDrives) -> jax.Array:
     """Terminal voltage V = R i + k_t omega_m, V."""
     return motor.resistance * current(torque_at_motor, motor) + motor.torque_constant * speed_at_motor
 
 
-def electrical_power(torque_at_motor: jax.Array, speed_at_motor: jax.Array, motor: Motor) -> jax.Array:
+def electrical_power(torque_at_motor: jax.Array, speed_at_motor: jax.Array, motor: Motor | JointDrives) -> jax.Array:
     """P_el = V i = mechanical power T_m omega_m + Joule loss, W."""
     return voltage(torque_at_motor, speed_at_motor, motor) * current(torque_at_motor, motor)
 
@@ -218,12 +219,15 @@ NO_VOLTAGE_LIMIT = 1e6
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class JointDrives:
-    """The drive of each actuated joint as arrays (traced, batchable), SI units.
+    """The drive of each actuated joint, motor behind gear, as arrays (traced, batchable), SI units:
+    the one drive model of the gait problem, the co-design and DONALD.
 
     Attributes:
-      ratio: gear ratio N, shape (n_joints,). efficiency: gear efficiency eta, shape (n_joints,).
-      torque_constant: k_t, N m/A, shape (n_joints,). resistance: R, ohm, shape (n_joints,).
-      supply_voltage: V_s, V, shape ().
+      ratio: gear ratio N. efficiency: gear efficiency eta. torque_constant: k_t, N m/A.
+      resistance: R, ohm. supply_voltage: V_s, V, shape ().
+      gear_torque_limit: the gear's intermittent output torque, N m (inf: none).
+      reflected_inertia: N^2 (J_rotor + J_gear), the drive's inertia at the joint, kg m^2.
+    Per-joint fields have shape (n_joints,), or () for the same drive at every joint (DONALD's).
     """
 
     ratio: jax.Array
@@ -231,6 +235,13 @@ class JointDrives:
     torque_constant: jax.Array
     resistance: jax.Array
     supply_voltage: jax.Array
+    gear_torque_limit: jax.Array
+    reflected_inertia: jax.Array
+
+
+def reflected_inertia(ratio, rotor_inertia, gear_inertia) -> jax.Array:
+    """N^2 (J_rotor + J_gear), kg m^2: the drive's inertia seen at the joint (J_gear on the motor side)."""
+    return ratio**2 * (rotor_inertia + gear_inertia)
 
 
 def ideal_drives(joints: int = 4) -> JointDrives:
@@ -238,7 +249,42 @@ def ideal_drives(joints: int = 4) -> JointDrives:
     the paper's integral of u^T u, so the paper's gait problem is this special case."""
     ones = jnp.ones(joints)
     return JointDrives(ratio=ones, efficiency=ones, torque_constant=ones, resistance=ones,
-                       supply_voltage=jnp.asarray(NO_VOLTAGE_LIMIT))
+                       supply_voltage=jnp.asarray(NO_VOLTAGE_LIMIT), gear_torque_limit=jnp.full(joints, jnp.inf),
+                       reflected_inertia=jnp.zeros(joints))
+
+
+def catalogue_drives(motor: str, gearhead: str, supply_voltage: float,
+                     catalogue: Catalogue | None = None) -> JointDrives:
+    """One catalogue motor behind one catalogue gearhead at every joint (fields of shape ()); raises
+    ValueError naming an unknown part."""
+    catalogue = catalogue or load_catalogue()
+    m, g = catalogue.motor(motor), catalogue.gearhead(gearhead)
+    return JointDrives(ratio=jnp.asarray(g.ratio), efficiency=jnp.asarray(g.efficiency),
+                       torque_constant=jnp.asarray(m.torque_constant), resistance=jnp.asarray(m.resistance),
+                       supply_voltage=jnp.asarray(float(supply_voltage)),
+                       gear_torque_limit=jnp.asarray(g.intermittent_torque),
+                       reflected_inertia=jnp.asarray(reflected_inertia(g.ratio, m.rotor_inertia, g.inertia)))
+
+
+def torque_limits(drives: JointDrives, joint_speed: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Lowest and highest joint torque the drives can give at ``joint_speed`` (rad/s), N m.
+
+    Motor torque within k_t (+-V_s - k_t omega_m) / R (the speed-torque lines at +-V_s); through the
+    gear with efficiency eta when the motor drives the load and 1/eta when the load drives the motor
+    (eq. 2.3 inverted); clipped to the gear's intermittent output torque.
+    """
+    omega_m = motor_speed(joint_speed, drives.ratio)
+    back_emf = drives.torque_constant * omega_m
+    motor_high = drives.torque_constant * (drives.supply_voltage - back_emf) / drives.resistance
+    motor_low = drives.torque_constant * (-drives.supply_voltage - back_emf) / drives.resistance
+
+    def to_joint(motor_torque):
+        motoring = motor_torque * joint_speed >= 0
+        factor = jnp.where(motoring, drives.efficiency, 1 / drives.efficiency)
+        return motor_torque * drives.ratio * factor
+
+    limit = drives.gear_torque_limit
+    return jnp.clip(to_joint(motor_low), -limit, limit), jnp.clip(to_joint(motor_high), -limit, limit)
 
 
 #: Joint power over which the gear's efficiency switches smoothly from back-driven to motoring, W.
