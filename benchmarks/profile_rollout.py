@@ -30,7 +30,7 @@ def make_rollout_cost(biped, remat: bool, unroll: int):
         def step(state, u):
             q, qd = state
             data = mjx.forward(model, template.replace(qpos=q, qvel=qd, ctrl=u))
-            force = hs._stance_force(model, data)
+            force = hs.stance_force(model, data)
             data = mjx.euler(model, data)
             return (data.qpos, data.qvel), (data.qpos, force)
         if remat:

@@ -56,7 +56,7 @@ def main():
     started = time.perf_counter()
     record("M2 warm (compiled, heuristic start)", started, solver.solve(["M2"], m2))
     names = [r.name for r in study.PAPER_MODELS]
-    models = study._models(study.PAPER_MODELS)
+    models = study.paper_gait_models(study.PAPER_MODELS)
     started = time.perf_counter()
     first = solver.solve(names, models)
     record("M1-M4 batch cold (compile + solve)", started, first)

@@ -10,16 +10,9 @@ from biped_jax import outputs
 CONVERGED = "converged"
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 def plot_mass_scaling(study: dict, path: Path) -> None:
     """Peak joint power and Joule energy per metre against total mass, log-log, with the fits."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     keys = (("peak_joint_power_W", "peak_power_exponent", "peak joint power [W]"),
             ("joule_energy_per_metre_J_per_m", "joule_per_metre_exponent", "Joule energy per metre [J/m]"))
@@ -49,7 +42,7 @@ def plot_mass_scaling(study: dict, path: Path) -> None:
 
 def plot_speed_limits(study: dict, path: Path) -> None:
     """Highest feasible speed against the gear ratio."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axis = plt.subplots(figsize=(7, 4.2), constrained_layout=True)
     ratios = np.array(study["ratios"])
     speed = np.array(study["max_speed_mps"], dtype=float)
@@ -68,7 +61,7 @@ def plot_speed_limits(study: dict, path: Path) -> None:
 
 def plot_pareto(study: dict, path: Path) -> None:
     """Joule energy per metre against robot mass, one colour per winding, the Pareto front joined."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axis = plt.subplots(figsize=(7.5, 4.8), constrained_layout=True)
     designs = study["designs"]
     windings = list(dict.fromkeys(r["winding"] for r in designs))
@@ -98,7 +91,7 @@ def plot_pareto(study: dict, path: Path) -> None:
 
 def plot_optimisation(study: dict, path: Path) -> None:
     """Joule energy of every start over the iterations, and the ratios of the best design."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
     joule = np.array(study["path"]["joule_J"], dtype=float)  # (iterations + 1, B)
     status = np.array(study["path"]["status"])
@@ -121,10 +114,3 @@ def plot_optimisation(study: dict, path: Path) -> None:
     axes[1].grid(alpha=0.3, which="both")
     outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)
-
-
-def plot_all(results: dict, out: Path) -> None:
-    plot_mass_scaling(results["mass_scaling"], out / "codesign_mass_scaling.png")
-    plot_speed_limits(results["speed_limits"], out / "codesign_speed.png")
-    plot_pareto(results["pareto"], out / "codesign_pareto.png")
-    plot_optimisation(results["co_optimisation"], out / "codesign_optimisation.png")

@@ -41,8 +41,7 @@ def walk_duration(gait: donald.DonaldGait, steps: int) -> float:
 
 def plot_walk(run: donald.DonaldRun, path: Path) -> None:
     """Centre of mass and feet over time (forward and sideways), and a top view."""
-    from biped_jax.gait_report import _pyplot
-    plt = _pyplot()
+    plt = outputs.pyplot()
     t, com, feet = np.asarray(run.t), np.asarray(run.com), np.asarray(run.foot_position)
     touching, margin = donald.support_phases(run)
     figure, axes = plt.subplots(3, 1, figsize=(10, 10), constrained_layout=True)
@@ -76,8 +75,7 @@ def plot_walk(run: donald.DonaldRun, path: Path) -> None:
 def plot_torque_speed(run: donald.DonaldRun, drive: drives.JointDrives, path: Path) -> None:
     """Joint torque against joint speed for every joint, with the drive's limits (speed-torque lines
     at +-V_s through the gear, and the gear's torque limit)."""
-    from biped_jax.gait_report import _pyplot
-    plt = _pyplot()
+    plt = outputs.pyplot()
     speed, torque = np.asarray(run.joint_speed), np.asarray(run.torque)
     figure, axes = plt.subplots(1, 5, figsize=(18, 4), sharey=True, constrained_layout=True)
     line_speed = np.linspace(-5.0, 5.0, 201)

@@ -382,7 +382,7 @@ class _MjxDynamics:
         return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
 
     def outputs(self, q, qd, qdd, data):
-        force = hs._stance_force(self.pinned, data.replace(qacc=qdd))
+        force = hs.stance_force(self.pinned, data.replace(qacc=qdd))
         return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
 
     def swing_foot(self, q, qd):

@@ -102,20 +102,13 @@ def markdown_table(solution: GaitSolution) -> str:
     return "\n".join(lines)
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
 STYLES = {"M1": "-", "M2": "-.", "M3": "--", "M4": ":"}
 
 
 def plot_figure_2(solutions: list[GaitSolution], path: Path,
                   title: str = "Optimal steps (M1 solid, M2 dash-dot, M3 dashed, M4 dotted)") -> None:
     """Joint angle, velocity, torque and power over the step, models overlaid (paper Fig. 2)."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axes = plt.subplots(4, 4, figsize=(14, 11), sharex=True, constrained_layout=True)
     for solution in solutions:
         tr = solution.trajectory
@@ -144,7 +137,7 @@ def plot_figure_2(solutions: list[GaitSolution], path: Path,
 
 def plot_figure_3(solutions: list[GaitSolution], path: Path) -> None:
     """|torque| against |rpm| per joint (paper Fig. 3)."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axes = plt.subplots(1, 4, figsize=(15, 4), constrained_layout=True)
     for solution in solutions:
         tr = solution.trajectory
@@ -165,7 +158,7 @@ def plot_figure_3(solutions: list[GaitSolution], path: Path) -> None:
 
 def plot_convergence(solutions: list[GaitSolution], path: Path) -> None:
     """Scaled constraint violation and cost against gradient evaluations, one line per model."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, (left, right) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
     for solution in solutions:
         gradients = [row["gradients"] for row in solution.history]

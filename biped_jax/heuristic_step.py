@@ -100,7 +100,7 @@ def simulate(biped: hs.PlanarBiped, gait: HeuristicGait):
         angle, rate = reference(gait, start, end, q[0], qd[0], q0[0])
         u = gait.stiffness * (angle - q[actuated]) + gait.damping * (rate - qd[actuated])
         data = hs.mjx.forward(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
-        force = hs._stance_force(pinned, data)
+        force = hs.stance_force(pinned, data)
         data = hs.mjx.euler(pinned, data)
         return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc, u, force)
 

@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import gait, humanoid, study
-from biped_jax.gait_report import _pyplot
 from biped_jax import outputs
 
 #: The paper's drive of the 12 kg robot (Section 2.3), drawn beside the replay's joint demand.
@@ -25,7 +24,7 @@ def paper_model(name: str) -> tuple[str, gait.GaitModel]:
     rows = {r.name: r for r in study.PAPER_MODELS}
     if name not in rows:
         raise ValueError(f"unknown model {name!r}; known: {', '.join(rows)}")
-    return rows[name].mass_class, study._models([rows[name]])[0]
+    return rows[name].mass_class, study.paper_gait_models([rows[name]])[0]
 
 
 def solved_gait(name: str, settings: gait.GaitSettings, gaits: Path | None,
@@ -61,7 +60,7 @@ def solved_gait(name: str, settings: gait.GaitSettings, gaits: Path | None,
 
 def plot_walk(run: humanoid.Replay, com: np.ndarray, path: Path) -> None:
     """Centre of mass, hips and feet over time (forward and height)."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axes = plt.subplots(2, 1, figsize=(10, 7), sharex=True, constrained_layout=True)
     for k, (axis, label) in enumerate(zip(axes, ("forward x [m]", "height z [m]"))):
         column = (0, 2)[k]
@@ -81,7 +80,7 @@ def plot_walk(run: humanoid.Replay, com: np.ndarray, path: Path) -> None:
 
 def plot_tracking(run: humanoid.Replay, path: Path) -> None:
     """Each sagittal joint (labelled by stance and swing leg) against its reference, and the errors."""
-    plt = _pyplot()
+    plt = outputs.pyplot()
     figure, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True, constrained_layout=True)
     for k, name in enumerate(("stance hip", "stance knee", "swing hip", "swing knee")):
         colour = f"C{k}"
@@ -97,7 +96,7 @@ def plot_tracking(run: humanoid.Replay, path: Path) -> None:
     plt.close(figure)
 
 
-def centre_of_mass(mj_model, qpos: np.ndarray) -> np.ndarray:
+def com_path(mj_model, qpos: np.ndarray) -> np.ndarray:
     """Whole-body centre of mass at each sample, shape (N, 3), m (MuJoCo C kinematics)."""
     import mujoco
     data = mujoco.MjData(mj_model)
@@ -141,7 +140,7 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
                    "gait_settings": dataclasses.asdict(settings),
                    "steps_commanded": steps})
     outputs.write_json(out / "humanoid.json", report)
-    com = centre_of_mass(mj_model, run.qpos)
+    com = com_path(mj_model, run.qpos)
     plot_walk(run, com, out / "humanoid_walk.png")
     plot_tracking(run, out / "humanoid_tracking.png")
     torque = humanoid.applied_torque(run, layout, humanoid.DEFAULT_GAINS)[:, layout.sagittal_actuators]

@@ -37,12 +37,11 @@ from biped_jax.design import (
 mjx = robots.import_mjx()
 
 PINNED_COORDINATES = ("stance", "knee1", "hip1", "hip2", "knee2")
-FLOATING_COORDINATES = ("x", "z", "pitch", "hip1", "knee1", "hip2", "knee2")
 ACTUATED = ("H1", "K1", "H2", "K2")
 N_PINNED, N_FLOATING, N_ACTUATED = 5, 7, 4
 
 # floating -> pinned coordinates: stance = pitch + hip1 + knee1; the joint angles copied.
-_FLOATING_TO_PINNED = np.array([
+FLOATING_TO_PINNED = np.array([
     [0, 0, 1, 1, 1, 0, 0],
     [0, 0, 0, 0, 1, 0, 0],
     [0, 0, 0, 1, 0, 0, 0],
@@ -50,7 +49,7 @@ _FLOATING_TO_PINNED = np.array([
     [0, 0, 0, 0, 0, 0, 1],
 ], dtype=float)
 # Relabelling swaps (hip1, knee1) with (hip2, knee2) in floating coordinates.
-_RELABEL = np.array([0, 1, 2, 5, 6, 3, 4])
+RELABEL = np.array([0, 1, 2, 5, 6, 3, 4])
 
 
 @jax.tree_util.register_dataclass
@@ -240,7 +239,7 @@ def stance_rollout(pinned, q0: jax.Array, qd0: jax.Array, controls: jax.Array) -
     def step(state, u):
         q, qd = state
         data = mjx.forward(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
-        force = _stance_force(pinned, data)
+        force = stance_force(pinned, data)
         data = integrate(pinned, data)
         return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc, force)
 
@@ -255,14 +254,14 @@ _INTEGRATORS = {int(mjx.IntegratorType.EULER): mjx.euler,
                 int(mjx.IntegratorType.IMPLICITFAST): mjx.implicit}
 
 
-def _stance_force(pinned, data) -> jax.Array:
+def stance_force(pinned, data) -> jax.Array:
     """(F_x, F_z) the world exerts on the stance shank through the pin, N, from MJX's
     Newton-Euler pass (``rne_postconstraint``: body accelerations with gravity, interaction forces)."""
     data = mjx.rne_postconstraint(pinned, data)
-    return data._impl.cfrc_int[_STANCE_BODY, jnp.array([3, 5])]
+    return data._impl.cfrc_int[STANCE_BODY, jnp.array([3, 5])]
 
 
-_STANCE_BODY = 1  # shank1, the first body of the pinned chain (checked in the tests)
+STANCE_BODY = 1  # shank1, the first body of the pinned chain (checked in the tests)
 
 
 def stance_acceleration(pinned, q: jax.Array, qd: jax.Array, u: jax.Array) -> jax.Array:
@@ -285,7 +284,7 @@ def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.
     """
     data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
     data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
-    return _stance_force(pinned, data.replace(qacc=qdd))
+    return stance_force(pinned, data.replace(qacc=qdd))
 
 
 # ----------------------------------------------------------------------------- touchdown
@@ -301,13 +300,13 @@ def pinned_to_floating(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, 
 
 def floating_to_pinned(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Pinned coordinates (shape (5,) each) of a floating state whose leg 1 is on the ground."""
-    transform = jnp.asarray(_FLOATING_TO_PINNED, qf.dtype)
+    transform = jnp.asarray(FLOATING_TO_PINNED, qf.dtype)
     return transform @ qf, transform @ qfd
 
 
 def relabel(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Swaps legs 1 and 2 of a floating-base state."""
-    return qf[_RELABEL], qfd[_RELABEL]
+    return qf[RELABEL], qfd[RELABEL]
 
 
 def foot_jacobian(floating, qf: jax.Array, foot: str) -> jax.Array:

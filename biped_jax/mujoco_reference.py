@@ -88,7 +88,7 @@ class CGaitRollout:
             rows["sites"].append(d.site_xpos[self._sites].copy())
             d.qacc[:] = qdd  # no contacts or limits in the pinned chain
             mujoco.mj_rnePostConstraint(m, d)
-            rows["force"].append(d.cfrc_int[hs._STANCE_BODY, [3, 5]].copy())
+            rows["force"].append(d.cfrc_int[hs.STANCE_BODY, [3, 5]].copy())
             for name, value in (("q", q), ("qd", qd), ("qdd", qdd), ("u", gait.actuated_torque(mass, bias, qdd))):
                 rows[name].append(np.array(value))
         positions = np.stack(rows["sites"])
@@ -124,11 +124,9 @@ class CGaitRollout:
             mujoco.mj_jacSite(m, d, jac, None, m.site(foot).id)
             jacobians[foot] = jac[[0, 2]]
         jac = jacobians["foot2"]
-        kkt = np.block([[self._floating_mass, -jac.T], [jac, np.zeros((2, 2))]])
-        solution = np.linalg.solve(kkt, np.concatenate([self._floating_mass @ qfd, np.zeros(2)]))
-        qfd_after, impulse = solution[:m.nv], solution[m.nv:]
-        relabelled = hs._RELABEL
-        q_next, qd_next = hs._FLOATING_TO_PINNED @ qf[relabelled], hs._FLOATING_TO_PINNED @ qfd_after[relabelled]
+        qfd_after, impulse = hs.inelastic_impact(self._floating_mass, jac, qfd, xp=np)
+        relabelled = hs.RELABEL
+        q_next, qd_next = hs.FLOATING_TO_PINNED @ qf[relabelled], hs.FLOATING_TO_PINNED @ qfd_after[relabelled]
         return hs.Touchdown(q=q_next, qd=qd_next, impulse=impulse,
                             old_stance_foot_velocity=jacobians["foot1"] @ qfd_after,
                             floating_qd_before=qfd, floating_qd_after=qfd_after, floating_q=qf)

@@ -130,6 +130,14 @@ def write_json(path: Path, record: Any) -> Path:
     return write_text(path, json_text(record))
 
 
+def pyplot():
+    """matplotlib.pyplot on the file-only Agg backend (every figure of the package is written to a file)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
 def save_figure(figure, path: Path, dpi: int = 110) -> Path:
     """Saves a matplotlib figure atomically (the format from ``path``'s suffix)."""
     path = Path(path)

@@ -31,7 +31,9 @@ PAPER_MODELS = (PaperModel("M1", "12kg", 0.417, 20.0), PaperModel("M2", "12kg", 
                 PaperModel("M3", "18kg", 0.417, 25.0), PaperModel("M4", "18kg", 0.555, 40.0))
 
 
-def _models(rows, power_limits=None, step_length: float = 0.2):
+def paper_gait_models(rows, power_limits=None, step_length: float = 0.2) -> list[gait.GaitModel]:
+    """The gait problems of ``rows`` (:data:`PAPER_MODELS` or some of them), at their own power limits
+    or at ``power_limits`` (W, one per row); step length in m."""
     limits = power_limits if power_limits is not None else [r.power_limit for r in rows]
     return [gait.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
 
@@ -124,7 +126,7 @@ def solve_paper_models(solver: GaitSolver, families=CONTINUATION_FAMILIES, rows=
     the limit and the one carried on) and the free-stage solutions per family."""
     say = progress or (lambda message: None)
     names = [r.name for r in rows]
-    free_models = _models(rows, [FREE_POWER_LIMIT] * len(rows))
+    free_models = paper_gait_models(rows, [FREE_POWER_LIMIT] * len(rows))
     free_solver = solver.with_options(penalty_initial=100.0, penalty_growth=10.0, max_inner=40, max_outer=20)
     by_family = []
     for k, family in enumerate(families):
@@ -141,7 +143,7 @@ def solve_paper_models(solver: GaitSolver, families=CONTINUATION_FAMILIES, rows=
         spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation,
                          "power_limit_W": FREE_POWER_LIMIT, "carried_on": s is best}
                         for f, s in zip(families, group)])
-    solutions = solver.solve(names, _models(rows), x0=jnp.asarray(np.stack(chosen)),
+    solutions = solver.solve(names, paper_gait_models(rows), x0=jnp.asarray(np.stack(chosen)),
                              progress=_iterations(say, "at the paper's power limits", solver.options))
     for solution, spread in zip(solutions, spreads):
         solution.starts = spread
@@ -264,13 +266,13 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
         f"spans), then the best in {settings.spans} spans ({'SLSQP' if method == 'sqp' else 'augmented Lagrangian'})")
     solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
-        solver, names, _models(PAPER_MODELS), families=families, coarse=coarse,
+        solver, names, paper_gait_models(PAPER_MODELS), families=families, coarse=coarse,
         progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row),
         finished=lambda part, count: say(f"M1-M4 {part}: done", task=(f"M1-M4 {part}", count, count))),
         resume, say)
     say("the four models at M_W = 20 W")
     at_20 = outputs.stage(out, "at_20W", key, lambda: done("20 W", solver.solve(
-        names, _models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),
+        names, paper_gait_models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),
         progress=report("20 W"))), resume, say)
     # A gait feasible at 20 W is feasible at every looser limit: where it costs less than the solution
     # found at the paper's limit, that solution was a worse local optimum; restart from it. (Cheaper by
@@ -281,7 +283,7 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
         say("restarting " + ", ".join(names[b] for b in better) + " from their cheaper 20 W gaits")
         starts = jnp.stack([jnp.asarray(at_20[b].x if b in better else s.x) for b, s in enumerate(solutions)])
         restarted = outputs.stage(out, "restart", key, lambda: done("restart", solver.solve(
-            names, _models(PAPER_MODELS), x0=starts, progress=report("restart"))), resume, say)
+            names, paper_gait_models(PAPER_MODELS), x0=starts, progress=report("restart"))), resume, say)
         solutions = [r if (b in better and r.status == al.CONVERGED and r.cost < s.cost) else s
                      for b, (s, r) in enumerate(zip(solutions, restarted))]
     say("smallest feasible power limit per model")
@@ -294,7 +296,8 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
             f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
     minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
         "smallest power limit (study space)", minimal_power_limits(
-            solvers.power, solutions, _models(PAPER_MODELS), coarse=solvers.coarse_power, progress=power_report),
+            solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
+            progress=power_report),
         lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
 
     records = []

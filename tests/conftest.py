@@ -53,4 +53,4 @@ def paper_solutions(short_solver):
     """M1-M4 in one batch from the default start family (the program `biped-jax reproduce --spans 4
     --substeps 4` compiles for its refined-space stage)."""
     from biped_jax import study
-    return short_solver.solve([r.name for r in study.PAPER_MODELS], study._models(study.PAPER_MODELS))
+    return short_solver.solve([r.name for r in study.PAPER_MODELS], study.paper_gait_models(study.PAPER_MODELS))

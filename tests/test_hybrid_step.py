@@ -58,7 +58,7 @@ def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout)
     """F = m_total (a_com - g), with a_com differentiated from the centre of mass position; and the
     rollout's per-step force is the same function of its states."""
     pinned = biped12.pinned
-    assert hs._STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
+    assert hs.STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
                                                 mujoco.mjtObj.mjOBJ_BODY, "shank1")
     qdd = jax.jit(hs.stance_acceleration)(pinned, Q, QD, U)
     com = functools.partial(hs.center_of_mass, pinned)

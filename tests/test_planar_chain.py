@@ -54,7 +54,7 @@ def test_every_quantity_equals_mjx(biped12, designed, seed):
     # MJX's Euler integrates damping implicitly; its forward pass's qacc is the explicit one
     np.testing.assert_allclose(qdd, data.qacc, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(planar_chain.root_force(chain, designed, state, qdd),
-                               hs._stance_force(designed, data), atol=1e-9)
+                               hs.stance_force(designed, data), atol=1e-9)
     site_ids = [mjx.name2id(designed, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name) for name in SITES]
     np.testing.assert_allclose(planar_chain.site_positions(chain, designed, state, SITES),
                                data.site_xpos[jnp.array(site_ids)][:, jnp.array([0, 2])], atol=1e-14)
