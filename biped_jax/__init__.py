@@ -1,9 +1,10 @@
 """biped_jax: design fast-walking legged robots by differentiable simulation (JAX + MuJoCo MJX).
 
-Modules: ``robots`` (model registry and loading), ``robot_specs`` and ``mjcf`` (robot data and the
-MJCF files), ``design`` (design parameters as arrays), ``hybrid_step`` (the sagittal walking step in
-MJX), ``gait`` and ``gait_solver`` (the optimal walking step), ``drives`` and ``drive_selection``
-(motors and gearheads), ``codesign``, ``heuristic_step`` (a PD-controlled step), ``cli`` (the
+Modules (README "Module map"): ``robots``, ``robot_specs``, ``mjcf``, ``design`` (the robots and their
+design arrays); ``hybrid_step`` and ``planar_chain`` (the walking step in MJX and in closed form);
+``augmented_lagrangian`` and ``sqp`` (the optimisers); ``gait`` and ``gait_solver`` (the optimal
+walking step); ``drives`` and ``drive_selection`` (motors and gearheads); ``codesign``; ``donald``,
+``humanoid``; ``study`` and the other ``*_study`` modules (the command line's studies); ``cli`` (the
 ``biped-jax`` command).
 
 The names below load on first use (PEP 562), so ``import biped_jax`` and the command line's argument
