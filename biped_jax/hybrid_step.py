@@ -291,11 +291,14 @@ def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.
 
 def pinned_to_floating(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Floating-base state (shape (7,) each) of a single-support state, stance foot at the origin."""
-    def to_floating(q_):
-        hip = site_position(pinned, q_, "hip")
-        stance, knee1, hip1, hip2, knee2 = q_
-        return jnp.stack([hip[0], hip[2], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
-    return jax.jvp(to_floating, (q,), (qd,))
+    return jax.jvp(lambda q_: _floating_coordinates(site_position(pinned, q_, "hip")[jnp.array([0, 2])], q_),
+                   (q,), (qd,))
+
+
+def _floating_coordinates(hip: jax.Array, q: jax.Array) -> jax.Array:
+    """Floating-base coordinates (7,) from the hip's world (x, z) and the pinned angles q (5,)."""
+    stance, knee1, hip1, hip2, knee2 = q
+    return jnp.stack([hip[0], hip[1], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
 
 
 def floating_to_pinned(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -339,9 +342,7 @@ def chain_touchdown(chain: planar_chain.PlanarChain, pinned, q: jax.Array, qd: j
     qd = _check_shape("qd", qd, (N_PINNED,))
 
     def to_floating(q_):  # as pinned_to_floating
-        hip = planar_chain.site_motion(chain, pinned, q_, jnp.zeros_like(q_), "hip")[0]
-        stance, knee1, hip1, hip2, knee2 = q_
-        return jnp.stack([hip[0], hip[1], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
+        return _floating_coordinates(planar_chain.site_motion(chain, pinned, q_, jnp.zeros_like(q_), "hip")[0], q_)
 
     qf, qfd_before = jax.jvp(to_floating, (q,), (qd,))
     state = planar_chain.kinematics(chain, pinned, q, qd)
