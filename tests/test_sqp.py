@@ -94,6 +94,33 @@ def test_the_smallest_limit_on_the_problems_own_compiled_functions():
     assert limit.lifted(np.array([3.0, 1.0, 2.0]), 2.0, np.array([1.0]), np.array([-3.0, -5.0]), 1e-5) is None
 
 
+def test_a_working_set_of_rows_ends_at_the_full_problems_optimum():
+    """min |x - (3, 3)|^2 s.t. x0 <= 1, x1 <= 2, x0 + x1 <= 10, from 0 with a working margin of 1.5:
+    SLSQP first sees x0 <= 1 only (the others start 2 and 10 away) and ends at (1, 3), which breaks
+    x1 <= 2; that row joins and it goes on to (1, 2), the full problem's optimum with its multipliers
+    (4, 2, 0: zero on the row never seen). The limit minimisation's rows on the limit are seen however
+    far from active they start."""
+    problem = al.ConstrainedProblem.from_functions(
+        lambda x, p: jnp.sum((x - p) ** 2), lambda x, p: jnp.zeros(0),
+        lambda x, p: jnp.array([x[0] - 1.0, x[1] - 2.0, x[0] + x[1] - 10.0]))
+    options = sqp.SQPOptions(working_margin=1.5)
+    assert list(sqp.working_rows(np.array([-1.0, -2.0, -10.0]), 1.5)) == [0]
+    screened = sqp.solve(problem, np.zeros((1, 2)), jnp.array([[3.0, 3.0]]), options)
+    full = sqp.solve(problem, np.zeros((1, 2)), jnp.array([[3.0, 3.0]]))
+    assert screened.status == full.status == [al.CONVERGED]
+    np.testing.assert_allclose(screened.x, [[1.0, 2.0]], atol=1e-7)
+    np.testing.assert_allclose(screened.multipliers_in, [[4.0, 2.0, 0.0]], atol=1e-6)
+    np.testing.assert_allclose(full.multipliers_in, screened.multipliers_in, atol=1e-6)
+
+    compiled = sqp.compile_problem(_shared_load_problem())
+    limit = sqp.LimitMinimisation(compiled, lambda p, t: {"limit": p["limit"] * t})
+    far = {"limit": jnp.array([6.0])}  # x_i - 6 t at (1, 2), t = 1: -5 and -4, outside the margin
+    assert list(limit.always_seen(np.array([1.0, 2.0, 1.0]), {"limit": jnp.asarray(6.0)})) == [True, True]
+    result = sqp.solve(_shared_load_problem(), np.array([[1.0, 2.0, 1.0]]), far, options, compiled=limit)
+    assert result.status == [al.CONVERGED]
+    np.testing.assert_allclose(result.x, [[1.5, 1.5, 0.25]], atol=1e-7)
+
+
 def _banded_problem(with_residuals: bool):
     """Outputs local in x (residual i reaches x_i and x_i+1) but for one equality coupling the ends:
     two colours whatever the size (odd and even columns), three with an objective reaching x_0..x_2."""
