@@ -60,21 +60,25 @@ def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout)
     pinned = biped12.pinned
     assert hs.STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
                                                 mujoco.mjtObj.mjOBJ_BODY, "shank1")
-    qdd = jax.jit(hs.stance_acceleration)(pinned, Q, QD, U)
     com = functools.partial(hs.center_of_mass, pinned)
 
-    @jax.jit
     def newton(q, qd, qdd):
         com_velocity = lambda q_: jax.jvp(com, (q_,), (qd,))[1]  # noqa: E731
         acceleration = jax.jvp(com, (q,), (qdd,))[1] + jax.jvp(com_velocity, (q,), (qd,))[1]
         return (jnp.sum(pinned.body_mass) * (acceleration - pinned.opt.gravity))[jnp.array([0, 2])]
 
-    force = jax.jit(hs.ground_reaction)(pinned, Q, QD, qdd)
-    np.testing.assert_allclose(force, newton(Q, QD, qdd), rtol=1e-10)
+    @jax.jit  # one compiled program: the acceleration under u, and the force both ways
+    def both(q, qd, u):
+        qdd = hs.stance_acceleration(pinned, q, qd, u)
+        return qdd, hs.ground_reaction(pinned, q, qd, qdd), newton(q, qd, qdd)
+
+    _, force, expected = both(Q, QD, U)
+    np.testing.assert_allclose(force, expected, rtol=1e-10)
     trajectory = rollout(pinned, Q, QD, jnp.tile(U, (200, 1)))
     k = 57
-    np.testing.assert_allclose(trajectory.ground_force[k],
-                               newton(trajectory.q[k], trajectory.qd[k], trajectory.qdd[k]), rtol=1e-10)
+    qdd, _, expected = both(trajectory.q[k], trajectory.qd[k], U)
+    np.testing.assert_allclose(trajectory.qdd[k], qdd, rtol=1e-10)
+    np.testing.assert_allclose(trajectory.ground_force[k], expected, rtol=1e-10)
 
 
 @pytest.mark.slow
@@ -82,27 +86,32 @@ def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support
     """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
     equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
     pinned, floating = biped12.pinned, biped12.floating
-    qdd = hs.stance_acceleration(pinned, Q, QD, U)
-    force = hs.ground_reaction(pinned, Q, QD, qdd)
-    qf, qfd = hs.pinned_to_floating(pinned, Q, QD)
+    shank1 = mujoco.mj_name2id(robots.load_mj_model("biped5_floating_12kg"), mujoco.mjtObj.mjOBJ_BODY, "shank1")
 
-    data = mjx.kinematics(floating, mjx.make_data(floating).replace(qpos=qf))
-    shank1 = mujoco.mj_name2id(robots.load_mj_model("biped5_floating_12kg"),
-                               mujoco.mjtObj.mjOBJ_BODY, "shank1")
-    foot = hs.site_position(floating, qf, "foot1")
-    force3 = jnp.array([force[0], 0.0, force[1]])
-    torque3 = jnp.cross(foot - data.xipos[shank1], force3)
-    xfrc = jnp.zeros((floating.nbody, 6)).at[shank1].set(jnp.concatenate([force3, torque3]))
-    data = mjx.make_data(floating).replace(qpos=qf, qvel=qfd, ctrl=U, xfrc_applied=xfrc)
-    qfdd = mjx.forward(floating, data).qacc
+    @jax.jit  # one compiled program (op by op, MJX's passes compile for a minute)
+    def accelerations():
+        qdd = hs.stance_acceleration(pinned, Q, QD, U)
+        force = hs.ground_reaction(pinned, Q, QD, qdd)
+        qf, qfd = hs.pinned_to_floating(pinned, Q, QD)
 
-    def hip(q):
-        return hs.site_position(pinned, q, "hip")[jnp.array([0, 2])]
-    hip_velocity = lambda q: jax.jvp(hip, (q,), (QD,))[1]  # noqa: E731
-    hip_acceleration = jax.jvp(hip, (Q,), (qdd,))[1] + jax.jvp(hip_velocity, (Q,), (QD,))[1]
-    stance, knee1, hip1, hip2, knee2 = qdd
-    expected = jnp.concatenate([hip_acceleration,
-                                jnp.stack([stance - knee1 - hip1, hip1, knee1, hip2, knee2])])
+        data = mjx.kinematics(floating, mjx.make_data(floating).replace(qpos=qf))
+        foot = hs.site_position(floating, qf, "foot1")
+        force3 = jnp.array([force[0], 0.0, force[1]])
+        torque3 = jnp.cross(foot - data.xipos[shank1], force3)
+        xfrc = jnp.zeros((floating.nbody, 6)).at[shank1].set(jnp.concatenate([force3, torque3]))
+        data = mjx.make_data(floating).replace(qpos=qf, qvel=qfd, ctrl=U, xfrc_applied=xfrc)
+        qfdd = mjx.forward(floating, data).qacc
+
+        def hip(q):
+            return hs.site_position(pinned, q, "hip")[jnp.array([0, 2])]
+        hip_velocity = lambda q: jax.jvp(hip, (q,), (QD,))[1]  # noqa: E731
+        hip_acceleration = jax.jvp(hip, (Q,), (qdd,))[1] + jax.jvp(hip_velocity, (Q,), (QD,))[1]
+        stance, knee1, hip1, hip2, knee2 = qdd
+        expected = jnp.concatenate([hip_acceleration,
+                                    jnp.stack([stance - knee1 - hip1, hip1, knee1, hip2, knee2])])
+        return qfdd, expected
+
+    qfdd, expected = accelerations()
     np.testing.assert_allclose(qfdd, expected, atol=1e-8 * float(jnp.abs(expected).max()))
 
 
@@ -237,8 +246,9 @@ def test_mjx_matches_mujoco_c_accelerations(name):
 def _directional_derivatives(cost, params, seed, directions=3):
     """(autodiff, central finite difference) directional derivatives of ``cost`` along random
     directions, each shape (directions,)."""
-    value_fn = jax.jit(cost)
-    gradient = jax.jit(jax.grad(cost))(params)
+    value_and_grad = jax.jit(jax.value_and_grad(cost))  # one compiled program for both
+    value_fn = lambda p: value_and_grad(p)[0]  # noqa: E731
+    gradient = value_and_grad(params)[1]
     rng = np.random.default_rng(seed)
     epsilon = 1e-6  # central differences: truncation ~eps^2, round-off ~1e-16/eps
     analytic, finite = [], []
@@ -288,8 +298,9 @@ def test_touchdown_gradient_matches_finite_differences(biped12):
     def impact_cost(qd):
         result = hs.touchdown(biped12, Q, qd)
         return jnp.sum(result.qd ** 2) + jnp.sum(result.impulse) + result.old_stance_foot_velocity[1]
-    gradient = jax.grad(impact_cost)(QD)
-    value_fn = jax.jit(impact_cost)
+    value_and_grad = jax.jit(jax.value_and_grad(impact_cost))  # one compiled program for both
+    gradient = value_and_grad(QD)[1]
+    value_fn = lambda qd: value_and_grad(qd)[0]  # noqa: E731
     epsilon = 1e-6
     finite = jnp.array([(value_fn(QD + epsilon * e) - value_fn(QD - epsilon * e)) / (2 * epsilon)
                         for e in jnp.eye(5)])

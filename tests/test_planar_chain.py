@@ -2,6 +2,7 @@
 armature and damping, a rollout and its gradient, the gait rollout both ways, and bad models."""
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -102,10 +103,12 @@ def test_rollout_and_its_gradient_equal_mjx(biped12, rollout):
         trajectory = rollout(pinned, q0, qd0, u)
         return trajectory.q, trajectory.qd, trajectory.ground_force
 
-    np.testing.assert_allclose(with_chain(controls)[0], with_mjx(controls)[0], atol=1e-12)
-    np.testing.assert_allclose(with_chain(controls)[2], with_mjx(controls)[2], atol=1e-9)
-    gradient_chain = jax.grad(cost)(controls, with_chain)
-    gradient_mjx = jax.grad(cost)(controls, with_mjx)
+    # one compiled program per dynamics for the states, the force and the gradient
+    results = {simulate: jax.jit(lambda u, simulate=simulate: (simulate(u), jax.grad(cost)(u, simulate)))(controls)
+               for simulate in (with_chain, with_mjx)}
+    (chain_states, gradient_chain), (mjx_states, gradient_mjx) = results.values()
+    np.testing.assert_allclose(chain_states[0], mjx_states[0], atol=1e-12)
+    np.testing.assert_allclose(chain_states[2], mjx_states[2], atol=1e-9)
     np.testing.assert_allclose(gradient_chain, gradient_mjx, rtol=1e-9, atol=1e-10)
 
 
@@ -118,7 +121,9 @@ def test_gait_rollout_is_the_same_with_either_dynamics(biped12):
     for dynamics in gait.DYNAMICS:
         settings = gait.GaitSettings(spans=4, substeps=2, dynamics=dynamics)
         x = gait.initial_guess(model, settings)
-        trajectories[dynamics] = gait.simulate(x, model, biped12, settings)
+        # one compiled program (as the solver's); run op by op, the MJX rollout compiles for minutes
+        simulate = jax.jit(functools.partial(gait.simulate, biped=biped12, settings=settings))
+        trajectories[dynamics] = simulate(x, model)
     chain, reference = trajectories["chain"], trajectories["mjx"]
     for field in ("q", "qd", "qdd", "u", "ground_force", "swing_foot", "heights"):
         np.testing.assert_allclose(getattr(chain, field), getattr(reference, field), rtol=1e-9, atol=1e-9,
