@@ -7,7 +7,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from biped_jax import outputs
+from biped_jax.report import outputs
 
 
 def median_seconds(function, args, repeats: int) -> float:

@@ -20,7 +20,7 @@ from _results import save_results
 
 
 def designs_for(batch: int):
-    from biped_jax import codesign
+    from biped_jax.codesign import problem as codesign
     ratios = np.exp(np.linspace(np.log(30.0), np.log(110.0), batch)) if batch > 1 else np.array([66.22])
     masses = np.linspace(10.0, 14.0, batch) if batch > 1 else np.array([12.0])
     rng = np.random.default_rng(0)
@@ -30,7 +30,7 @@ def designs_for(batch: int):
 
 
 def measure(solver, batch: int) -> dict:
-    from biped_jax import codesign
+    from biped_jax.codesign import problem as codesign
     designs = designs_for(batch)
     started = time.perf_counter()  # one outer iteration of two inner steps compiles every program
     codesign.solve_designs(solver.with_options(max_outer=1, max_inner=2), designs, 0.555, 20.0)
@@ -61,9 +61,9 @@ def main():
                         help="results file stem, so runs of other batch sizes keep their own file")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    from biped_jax import gait
-    from biped_jax.gait_solver import GaitSolver
-    from biped_jax.codesign_study import STUDY_OPTIONS
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.solver import GaitSolver
+    from biped_jax.studies.codesign import STUDY_OPTIONS
     settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
                                 dynamics=args.dynamics)
     solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)

@@ -1,7 +1,7 @@
 """An independent direct-collocation solve of the planar-step problem (CasADi + IPOPT, Hermite-Simpson).
 
 Written from ``../shared/spec/planar-step.md`` alone, sharing only the robot parameters
-(``biped_jax.robot_specs``) with the product: its own coordinates (absolute link pitches from the
+(``biped_jax.robots.specs``) with the product: its own coordinates (absolute link pitches from the
 vertical, positive leaning forward), its own Lagrangian dynamics (CasADi symbolic), its own impact map
 and relabelling. Hermite-Simpson in separated form: states and torques at every knot and segment
 midpoint, every path constraint at all of them, J by Simpson's rule.
@@ -23,7 +23,7 @@ import time
 import casadi as ca
 import numpy as np
 
-from biped_jax.robot_specs import PLANAR_SPECS, PlanarBipedSpec
+from biped_jax.robots.specs import PLANAR_SPECS, PlanarBipedSpec
 
 # relative joint angles (H1, K1, H2, K2) = S phi
 RELATIVE_JOINTS = np.array([[0, -1, 1, 0, 0], [1, -1, 0, 0, 0], [0, 0, 1, -1, 0], [0, 0, 0, -1, 1]], dtype=float)

@@ -4,7 +4,7 @@ The objective is the augmented Lagrangian of the M2 gait problem (cost, every co
 multipliers and penalty), exactly the compiled, vmapped value-and-gradient function the solver calls
 (``GaitSolver.compiled.value_and_grad``); the decision vector has 2 + 4 x degree entries. Batches are
 B different decision vectors (vmap); compile time is measured apart, run time is the median of
-``--repeats`` calls. The baseline evaluates the same function with MuJoCo C (``biped_jax.mujoco_reference``)
+``--repeats`` calls. The baseline evaluates the same function with MuJoCo C (``biped_jax.gait.mujoco_reference``)
 and takes central differences over the same decision vector, spread over all CPU cores with a process
 pool; its gradient is checked against the MJX one.
 
@@ -26,8 +26,8 @@ SPEED, POWER_LIMIT, STEP_LENGTH = 0.555, 20.0, 0.2  # model M2
 
 
 def _problem(settings):
-    from biped_jax import gait
-    from biped_jax.gait_solver import GaitSolver
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.solver import GaitSolver
     solver = GaitSolver(settings)
     model = gait.gait_model("12kg", SPEED, POWER_LIMIT, STEP_LENGTH)
     x0 = jax.jit(lambda m: gait.initial_guess(m, settings))(model)
@@ -63,15 +63,15 @@ _WORKER = {}
 
 
 def _worker_init(settings, multipliers):
-    from biped_jax import gait
-    from biped_jax.mujoco_reference import CGaitRollout
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.mujoco_reference import CGaitRollout
     jax.config.update("jax_platforms", "cpu")
     _WORKER["rollout"] = CGaitRollout("12kg", settings)
     _WORKER["model"] = gait.gait_model("12kg", SPEED, POWER_LIMIT, STEP_LENGTH)
     _WORKER["settings"] = settings
     _WORKER["multipliers"] = tuple(np.asarray(m) for m in multipliers)
 
-    from biped_jax import augmented_lagrangian as al
+    from biped_jax.optim import augmented_lagrangian as al
 
     @jax.jit
     def merit(trajectory, model, lam_eq, lam_in, rho):  # the cheap algebra after the C rollout
@@ -125,7 +125,7 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    from biped_jax import gait
+    from biped_jax.gait import problem as gait
     settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
                                 dynamics=args.dynamics)
     solver, model, x0, multipliers = _problem(settings)

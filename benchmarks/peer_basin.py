@@ -20,11 +20,11 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-
 from _results import save_results
 
 # peer coordinates (absolute pitches) -> the peer's relative joints, the matrix it uses for its power limit
 from collocation_peer import RELATIVE_JOINTS as _PEER_TO_JOINTS  # noqa: E402
+
 _JOINT_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])  # our hips turn about -y where the peer's are torso - thigh
 
 
@@ -32,7 +32,7 @@ def fitted_start(peer: dict, settings) -> np.ndarray:
     """Our decision vector closest to the peer's solution, shape (settings.size,)."""
     from scipy.interpolate import CubicHermiteSpline
 
-    from biped_jax import gait
+    from biped_jax.gait import problem as gait
     phi, phid, t = peer["phi"], peer["phid"], peer["t"]
     joints = (_PEER_TO_JOINTS @ phi) * _JOINT_SIGNS[:, None]
     points = np.linalg.lstsq(gait.basis(settings, t / t[-1])[0], joints.T, rcond=None)[0]
@@ -61,9 +61,9 @@ def main():
 
     from collocation_peer import PeerProblem, solve
 
-    from biped_jax import gait
-    from biped_jax.gait_solver import GaitSolver
-    from biped_jax.robot_specs import PLANAR_SPECS
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.solver import GaitSolver
+    from biped_jax.robots.specs import PLANAR_SPECS
 
     peer = solve(PeerProblem(PLANAR_SPECS[args.mass_class], args.speed, args.power_limit), args.peer_segments)
     print(f"peer: J = {peer['cost']:.4f} ({peer['status']}, {args.peer_segments} segments)", flush=True)

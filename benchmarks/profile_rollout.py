@@ -19,7 +19,7 @@ VARIANTS = ((True, 1), (False, 1), (True, 2))  # (checkpoint each step, scan unr
 
 def make_rollout_cost(biped, remat: bool, unroll: int):
     """A scalar cost of a 200-step single-support rollout (stance force included), for timing."""
-    from biped_jax import hybrid_step as hs
+    from biped_jax.dynamics import hybrid_step as hs
     mjx = hs.mjx
     pinned = hs.with_timestep(biped.pinned, TIMESTEP)
 
@@ -47,7 +47,7 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     options = parser.parse_args()
     jax.config.update("jax_enable_x64", not options.float32)
-    from biped_jax import hybrid_step as hs
+    from biped_jax.dynamics import hybrid_step as hs
     biped = hs.load_planar_biped("12kg")
     args = (hs.planar_design("12kg"), jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0]),
             jnp.array([2.5, 0.0, 2.5, -4.0, 0.0]), jnp.full((HORIZON, 4), 0.5))

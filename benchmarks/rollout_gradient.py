@@ -19,8 +19,8 @@ from _results import save_results
 
 
 def rollout_cost(biped, design, q0, qd0, controls, dynamics="mjx"):
-    from biped_jax import hybrid_step as hs
-    from biped_jax import planar_chain
+    from biped_jax.dynamics import hybrid_step as hs
+    from biped_jax.dynamics import planar_chain
     pinned = hs.with_design(biped, design).pinned
     if dynamics == "chain":
         q, qd, _, force = planar_chain.stance_rollout(planar_chain.PlanarChain.from_model(biped.pinned), pinned,
@@ -59,7 +59,7 @@ def main():
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", not args.float32)
 
-    from biped_jax import hybrid_step as hs
+    from biped_jax.dynamics import hybrid_step as hs
     biped = hs.load_planar_biped("12kg")
     biped = hs.PlanarBiped(pinned=hs.with_timestep(biped.pinned, 1.8e-3), floating=biped.floating)
     design = hs.planar_design("12kg")

@@ -33,8 +33,9 @@ def main():
         jax.config.update("jax_compilation_cache_dir", str(args.cache))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
-    from biped_jax import gait, study
-    from biped_jax.gait_solver import GAIT_SOLVER_OPTIONS, GaitSolver
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.solver import GAIT_SOLVER_OPTIONS, GaitSolver
+    from biped_jax.studies import paper as study
 
     settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
                                 dynamics=args.dynamics)

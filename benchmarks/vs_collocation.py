@@ -26,13 +26,13 @@ import time
 from pathlib import Path
 
 import jax
-
 from _results import save_results
 
 
 def peer_row(case, segments: int) -> dict:
     from collocation_peer import PeerProblem, solve
-    from biped_jax.robot_specs import PLANAR_SPECS
+
+    from biped_jax.robots.specs import PLANAR_SPECS
     problem = PeerProblem(PLANAR_SPECS[case.mass_class], case.speed, case.power_limit)
     coarse = solve(problem, segments)
     fine = solve(problem, 2 * segments)
@@ -61,8 +61,10 @@ def main():
     import jax.numpy as jnp
     import numpy as np
 
-    from biped_jax import gait, gait_solver, study
-    from biped_jax.gait_solver import GaitSolver
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait import solver as gait_solver
+    from biped_jax.gait.solver import GaitSolver
+    from biped_jax.studies import paper as study
 
     cases = [(m, m.power_limit) for m in study.PAPER_MODELS] + [(m, 20.0) for m in study.PAPER_MODELS]
     label = lambda m, p: m.name if p == m.power_limit else f"{m.name}@{p:g}W"  # noqa: E731

@@ -1,11 +1,11 @@
 """biped_jax: design fast-walking legged robots by differentiable simulation (JAX + MuJoCo MJX).
 
-Modules (README "Module map"): ``robots``, ``robot_specs``, ``mjcf``, ``design`` (the robots and their
-design arrays); ``hybrid_step`` and ``planar_chain`` (the walking step in MJX and in closed form);
-``augmented_lagrangian`` and ``sqp`` (the optimisers); ``gait`` and ``gait_solver`` (the optimal
-walking step); ``drives`` and ``drive_selection`` (motors and gearheads); ``codesign``; ``donald``,
-``humanoid``; ``study`` and the other ``*_study`` modules (the command line's studies); ``cli`` (the
-``biped-jax`` command).
+Subpackages in the order of the data flow (README "Module map"): ``robots`` (registry, specifications,
+MJCF, design arrays), ``dynamics`` (the walking step in MJX and the planar chain in closed form),
+``optim`` (augmented Lagrangian, SLSQP), ``gait`` (the optimal walking step: problem, solver, report,
+heuristic starts, MuJoCo C reference), ``drives`` (motors and gearheads, drive-train selection),
+``codesign``, ``donald``, ``humanoid``, ``studies`` (one module per command-line study), ``report``
+(output files, compile profiles); ``checks`` (input validation) and ``cli`` (the ``biped-jax`` command).
 
 The names below load on first use (PEP 562), so ``import biped_jax`` and the command line's argument
 checks do not wait for JAX and MuJoCo to import.
@@ -13,15 +13,15 @@ checks do not wait for JAX and MuJoCo to import.
 
 import importlib
 
-_EXPORTS = {
-    "Design": "design", "apply_design": "design", "check_design": "design", "design_layout": "design",
-    "PlanarBiped": "hybrid_step", "StanceTrajectory": "hybrid_step", "Touchdown": "hybrid_step",
-    "load_planar_biped": "hybrid_step", "stance_rollout": "hybrid_step", "touchdown": "hybrid_step",
-    "with_design": "hybrid_step",
-    "ROBOTS": "robots", "load_mj_model": "robots", "load_mjx_model": "robots", "model_path": "robots",
-    "GaitSettings": "gait", "gait_model": "gait", "START_FAMILIES": "gait",
-    "GaitSolver": "gait_solver", "GaitSolution": "gait_solver", "solve_multistart": "gait_solver",
+_MODULES = {
+    "robots.design": ("Design", "apply_design", "check_design", "design_layout"),
+    "dynamics.hybrid_step": ("PlanarBiped", "StanceTrajectory", "Touchdown", "load_planar_biped",
+                             "stance_rollout", "touchdown", "with_design"),
+    "robots.registry": ("ROBOTS", "load_mj_model", "load_mjx_model", "model_path"),
+    "gait.problem": ("GaitSettings", "gait_model", "START_FAMILIES"),
+    "gait.solver": ("GaitSolver", "GaitSolution", "solve_multistart"),
 }
+_EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 
 __all__ = sorted(_EXPORTS)
 __version__ = "0.1.0"

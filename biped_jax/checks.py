@@ -36,7 +36,7 @@ def concrete(*trees) -> bool:
 
 
 def gait_space(spans: int, degree: int, substeps: int, prefix: str = "") -> None:
-    """The reference space and grid of ``biped_jax.gait.GaitSettings`` (substeps even: Simpson)."""
+    """The reference space and grid of ``biped_jax.gait.problem.GaitSettings`` (substeps even: Simpson)."""
     for name, value in (("spans", spans), ("degree", degree), ("substeps", substeps)):
         integer_in(prefix + name, value, *GAIT_INTEGER_RANGES[name])
     if substeps % 2:

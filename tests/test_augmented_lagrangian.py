@@ -2,11 +2,12 @@
 so when a problem is infeasible or diverges."""
 
 import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax import augmented_lagrangian as al
+from biped_jax.optim import augmented_lagrangian as al
 
 OPTIONS = al.SolverOptions(tolerance=1e-8, stationarity=1e-6)
 # The solver stops at scaled violation 1e-8 and stationarity 1e-6: solutions agree to about 1e-6.

@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from biped_jax import cli, outputs
+from biped_jax import cli, commands
+from biped_jax.report import outputs
 
 
 def _error(capsys, argv) -> str:
@@ -185,8 +186,8 @@ def test_an_interrupted_run_says_so_and_sets_earlier_results_aside(capsys, tmp_p
     def interrupted_study(out):
         outputs.write_json(out / "results.json", {"from": "this run"})
         raise KeyboardInterrupt
-    monkeypatch.setattr(cli, "heuristic_steps", interrupted_study)
-    monkeypatch.setattr(cli, "configure_jax", lambda: None)
+    monkeypatch.setattr(commands, "heuristic_steps", interrupted_study)
+    monkeypatch.setattr(commands, "configure_jax", lambda: None)
     assert cli.main(["step", "--out", str(tmp_path)]) == 130
     error = capsys.readouterr().err
     assert "interrupted" in error and "results.json" in error and "Traceback" not in error
@@ -203,8 +204,11 @@ def _api_rows():
     """(label, call, text the message must contain); built lazily (the calls import JAX)."""
     import dataclasses
 
-    from biped_jax import codesign, drives, gait, robots
-    from biped_jax import hybrid_step as hs
+    from biped_jax.codesign import problem as codesign
+    from biped_jax.drives import model as drives
+    from biped_jax.dynamics import hybrid_step as hs
+    from biped_jax.gait import problem as gait
+    from biped_jax.robots import registry as robots
     biped, design = hs.load_planar_biped("12kg"), hs.planar_design("12kg")
     masses = lambda *m: dataclasses.replace(design, link_mass=np.array(m, dtype=float))  # noqa: E731
     motor = drives.load_catalogue().motor("RE25-42V")
@@ -251,7 +255,7 @@ def test_a_broken_study_result_is_named(capsys, tmp_path, content, message):
 
 def test_every_result_file_is_written_through_the_strict_atomic_writers():
     """The property behind 'no JSON the project writes contains NaN': every writer in the package goes
-    through biped_jax.outputs (strict JSON, atomic). A new direct write would break it."""
+    through biped_jax.report.outputs (strict JSON, atomic). A new direct write would break it."""
     from pathlib import Path
 
     import biped_jax
@@ -305,7 +309,7 @@ def test_resume_is_a_reproduce_option_checked_before_any_work(capsys):
 
 def test_the_committed_benchmark_results_are_strict_json():
     """Every JSON under benchmarks/results parses without NaN or Infinity (benchmarks save through
-    benchmarks/_results.py, which writes with biped_jax.outputs)."""
+    benchmarks/_results.py, which writes with biped_jax.report.outputs)."""
     folder = Path(__file__).resolve().parent.parent / "benchmarks" / "results"
 
     def refuse(constant):

@@ -5,7 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from biped_jax import cli, study
+from biped_jax import cli
+from biped_jax.studies import paper as study
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +58,7 @@ def test_unknown_command_and_model_are_rejected(capsys):
 
 
 def test_models_command_lists_every_model(capsys):
-    from biped_jax.robots import ROBOTS
+    from biped_jax.robots.registry import ROBOTS
     assert cli.main(["models"]) == 0
     listed = capsys.readouterr().out
     assert all(name in listed for name in ROBOTS)
@@ -140,7 +141,7 @@ ALARM = ("2025-03-19 07:30:02.045318: E external/xla/xla/service/slow_operation_
 def test_the_xla_slow_compile_alarm_is_replaced_by_one_line_and_errors_pass():
     import subprocess
     import sys
-    code = ("import os, sys\nfrom biped_jax.xla_alarm import quiet_compile_alarm\n"
+    code = ("import os, sys\nfrom biped_jax.report.xla_alarm import quiet_compile_alarm\n"
             "with quiet_compile_alarm():\n"
             f"    os.write(2, {ALARM.encode()!r})\n"
             "    os.write(2, b'E0000 a real error\\n')\n"

@@ -8,11 +8,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax import augmented_lagrangian as al
-from biped_jax import codesign, drives, gait
-from biped_jax import hybrid_step as hs
-from biped_jax.drives import GCM2
-from biped_jax.gait_solver import stack_tree
+from biped_jax.codesign import problem as codesign
+from biped_jax.drives import model as drives
+from biped_jax.drives.model import GCM2
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.gait import problem as gait
+from biped_jax.gait.solver import stack_tree
+from biped_jax.optim import augmented_lagrangian as al
 
 SPEED, POWER_LIMIT = 0.555, 20.0  # M2
 LOG_STEP = 0.03  # central difference in log N

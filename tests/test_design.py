@@ -7,11 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_jax import design as design_lib
-from biped_jax import hybrid_step as hs
-from biped_jax import robots
-from biped_jax.mjcf import planar_pinned_xml
-from biped_jax.robot_specs import PlanarBipedSpec
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.robots import design as design_lib
+from biped_jax.robots import registry as robots
+from biped_jax.robots.mjcf import planar_pinned_xml
+from biped_jax.robots.specs import PlanarBipedSpec
 
 mjx = robots.import_mjx()
 

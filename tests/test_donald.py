@@ -6,7 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax import donald, donald_study, drives
+from biped_jax.donald import model as donald
+from biped_jax.drives import model as drives
+from biped_jax.studies import donald as donald_study
 
 STEPS = 2  # one compiled walker (2 steps) serves every test here
 
@@ -113,7 +115,7 @@ def test_default_gait_is_feasible_for_the_speed_optimisation():
     objective is the speed over steps 2 and 3 recomputed here from the centre of mass."""
     import jax
 
-    from biped_jax import donald_speed
+    from biped_jax.donald import speed as donald_speed
     drive = donald.donald_drive()
     mj_model, model = donald_speed.differentiable_donald(drive)
     assert mj_model.opt.iterations == 1

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from biped_jax import drive_selection as ds
-from biped_jax import drives
+from biped_jax.drives import model as drives
+from biped_jax.drives import selection as ds
 
 CATALOGUE = drives.load_catalogue()
 

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax import drives
+from biped_jax.drives import model as drives
 
 CATALOGUE = drives.load_catalogue()
 RE25_24V = CATALOGUE.motor("RE25-118752")

@@ -9,13 +9,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-
-from biped_jax import augmented_lagrangian as al
-from biped_jax import gait, gait_report, gait_solver
-from biped_jax import hybrid_step as hs
-from biped_jax.drives import RPM
-
 from conftest import short_settings
+
+from biped_jax.drives.model import RPM
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.gait import problem as gait
+from biped_jax.gait import report as gait_report
+from biped_jax.gait import solver as gait_solver
+from biped_jax.optim import augmented_lagrangian as al
 
 # Short horizon for the tests: the same code as the study, fewer knot spans and steps.
 SETTINGS = short_settings()
@@ -53,9 +54,9 @@ def test_reach_follows_the_robots_legs():
 
 
 def test_kellys_benchmark_poses_its_problem():
-    """biped_jax.kelly imports and poses Kelly's problem (its "no friction limit" is a setting the
+    """biped_jax.studies.kelly imports and poses Kelly's problem (its "no friction limit" is a setting the
     checks accept: an import-time ValueError once broke `biped-jax kelly` without a test noticing)."""
-    from biped_jax import kelly
+    from biped_jax.studies import kelly
     assert kelly.KELLY_SETTINGS.friction == gait.NO_FRICTION_LIMIT
     model = kelly.kelly_model()
     assert float(model.speed) == pytest.approx(0.5 / 0.7) and float(model.step_length) == 0.5
@@ -290,7 +291,7 @@ def test_projection_into_a_finer_space_keeps_the_curve(biped12):
 def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
     """The optimiser's MJX rollout (controller, Euler, ground force, impact map) against the same step
     computed with MuJoCo's C library and a numpy impact map."""
-    from biped_jax.mujoco_reference import CGaitRollout
+    from biped_jax.gait.mujoco_reference import CGaitRollout
     reference = CGaitRollout("12kg", SETTINGS).simulate(m2_solution.x, 0.555, 0.2)
     mjx_step = m2_solution.trajectory
     for name in ("q", "qd", "qdd", "u", "ground_force", "swing_foot", "heights", "swing_foot_velocity"):
@@ -306,7 +307,7 @@ def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
 def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_solution):
     """The gradient the optimiser follows (MJX autodiff of the augmented Lagrangian) against central
     differences of the same function evaluated with MuJoCo C."""
-    from biped_jax.mujoco_reference import CGaitRollout
+    from biped_jax.gait.mujoco_reference import CGaitRollout
     model = gait.gait_model("12kg", 0.555, 20.0)
     rollout = CGaitRollout("12kg", SETTINGS)
     x = np.asarray(m2_solution.x) + 0.01 * np.cos(np.arange(SETTINGS.size))  # off the optimum
@@ -334,7 +335,7 @@ def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_
 def test_multiple_shooting_reproduces_single_shooting_and_reports_its_defects(biped12):
     """A multiple-shot step whose nodes lie on the single-shot trajectory is that trajectory (the
     defects vanish); a node moved off it shows up as exactly that defect, the same in MuJoCo C."""
-    from biped_jax.mujoco_reference import CGaitRollout
+    from biped_jax.gait.mujoco_reference import CGaitRollout
     model = gait.gait_model("12kg", 0.555, 20.0)
     multi = dataclasses.replace(SETTINGS, segments=SETTINGS.spans)
     x = gait.initial_guess(model, SETTINGS, family=gait.START_FAMILIES[1])
@@ -385,7 +386,7 @@ def test_continuation_keeps_the_cheapest_feasible_family_per_model_and_solves_it
     """study.solve_paper_models' bookkeeping, with a stand-in solver (no compilation): per model the
     cheapest converged family without a power limit is carried to the model's own limit, every family's
     outcome is listed, and a model with no converged family carries its least violated start."""
-    from biped_jax import study
+    from biped_jax.studies import paper as study
 
     class StandIn:
         settings, leg_length = short_settings(), 0.29

@@ -11,9 +11,11 @@ import pytest
 from conftest import short_settings
 from test_humanoid_sagittal import _sagittal_equivalent
 
-from biped_jax import gait, humanoid, robots
-from biped_jax import hybrid_step as hs
-from biped_jax.robot_specs import PLANAR_SPECS
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.gait import problem as gait
+from biped_jax import humanoid
+from biped_jax.robots import registry as robots
+from biped_jax.robots.specs import PLANAR_SPECS
 
 pytestmark = pytest.mark.slow  # MJX humanoid rollouts: minutes on the 2-core CPU
 

@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_jax import robots
+from biped_jax.robots import registry as robots
 
 # Lumped into each planar link: the humanoid's arms and head ride on the torso, the foot on the shank.
 GROUPS = {"torso": ("torso", "arm_l", "arm_r"), "thigh1": ("thigh_l",), "shank1": ("shank_l", "foot_l"),

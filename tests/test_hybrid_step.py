@@ -9,8 +9,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_jax import hybrid_step as hs
-from biped_jax import robots
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.robots import registry as robots
 
 mjx = robots.import_mjx()
 

@@ -6,8 +6,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_jax import mjcf, robots
-from biped_jax.robot_specs import DonaldSpec, HumanoidSpec, PlanarBipedSpec
+from biped_jax.robots import mjcf
+from biped_jax.robots import registry as robots
+from biped_jax.robots.specs import DonaldSpec, HumanoidSpec, PlanarBipedSpec
 
 mjx = robots.import_mjx()
 
@@ -16,12 +17,12 @@ TOTAL_MASS = {"12kg": 11.999, "18kg": 17.998, "kelly": 40.0}
 
 
 def test_committed_models_match_generators():
-    """models/*.xml are exactly what biped_jax.mjcf writes, so no variant can drift."""
+    """models/*.xml are exactly what biped_jax.robots.mjcf writes, so no variant can drift."""
     directory = robots.models_dir()
     sources = mjcf.model_sources()
     assert sorted(p.name for p in directory.glob("*.xml")) == sorted(sources)
     for name, text in sources.items():
-        assert (directory / name).read_text() == text, f"{name} is stale: run python -m biped_jax.mjcf"
+        assert (directory / name).read_text() == text, f"{name} is stale: run python -m biped_jax.robots.mjcf"
 
 
 @pytest.mark.parametrize("name", sorted(robots.ROBOTS))

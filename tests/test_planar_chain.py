@@ -9,8 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax import gait, planar_chain
-from biped_jax import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import planar_chain
+from biped_jax.gait import problem as gait
 
 mjx = hs.mjx
 SITES = ("foot1", "knee1", "hip", "knee2", "foot2")

@@ -1,4 +1,4 @@
-"""SLSQP on a ConstrainedProblem (biped_jax.sqp): known optima, multipliers in our sign convention,
+"""SLSQP on a ConstrainedProblem (biped_jax.optim.sqp): known optima, multipliers in our sign convention,
 infeasibility named, and on the gait: the same optimum from different start families."""
 
 import jax
@@ -6,9 +6,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax import augmented_lagrangian as al
-from biped_jax import codesign, gait, sqp
-from biped_jax.gait_solver import GaitSolver
+from biped_jax.codesign import problem as codesign
+from biped_jax.gait import problem as gait
+from biped_jax.gait.solver import GaitSolver
+from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import sqp
 
 
 def _projection_problem():

@@ -1,0 +1,295 @@
+"""What each ``biped-jax`` command runs and prints: the study of its module in :mod:`biped_jax.studies`
+under a live display, then a summary of the results (:mod:`biped_jax.cli` parses the arguments and
+dispatches here). Each ``run_*`` takes the parsed arguments and returns the exit status; the studies
+import JAX only when a command runs."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from biped_jax.report import outputs
+from biped_jax.report.progress import console, live_progress
+
+
+def configure_jax(cache_dir: str | None = None) -> None:
+    """float64 and the persistent compilation cache (set by the entry point, never on import)."""
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    cache = cache_dir or os.environ.get("BIPED_JAX_CACHE",
+                                        str(Path.home() / ".cache" / "biped_jax" / "jax"))
+    jax.config.update("jax_compilation_cache_dir", cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+
+
+def heuristic_steps(out: Path) -> dict:
+    """One heuristic PD-controlled step per mass class, reported; see :mod:`biped_jax.studies.heuristic_step`."""
+    from biped_jax.gait.heuristic_step import HeuristicGait
+    from biped_jax.studies import heuristic_step as step_study
+
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    summaries, arrays = [], {}
+    for mass_class in step_study.MASS_CLASSES:
+        with console.status(f"simulating a heuristic step of the {mass_class} biped "
+                            "(the first run compiles, about a minute)"):
+            summary, arrays[mass_class] = step_study.step_report(mass_class, HeuristicGait())
+        summaries.append(summary)
+        console.print(f"[green]done[/] {mass_class}: touched down = {summary['touched_down']}")
+    results = step_study.write_report(out, summaries, arrays, time.perf_counter() - started)
+    console.print(f"wrote {out / 'results.json'}, {out / 'heuristic_step.md'}, {out / 'heuristic_step.png'}")
+    return results
+
+
+def reproduce(out: Path, settings, resume: bool = False, method: str = "sqp", quick: bool = False) -> dict:
+    """The paper's study with a live progress display; see :func:`biped_jax.studies.paper.run_study`. ``quick``:
+    the coarse look of :data:`biped_jax.studies.paper.QUICK_SETTINGS` (``settings`` ignored), every file stamped."""
+    from biped_jax.studies import paper as study
+
+    started = time.perf_counter()
+    stamp = outputs.stamped(study.QUICK_STAMP) if quick else contextlib.nullcontext()
+    with live_progress(("M1-M4", "20 W:", "restart:", "smallest power limit")) as progress, stamp:
+        if quick:
+            console.log(study.QUICK_STAMP)
+            results = study.run_study(out, study.QUICK_SETTINGS, progress, resume=resume, method=method,
+                                      families=study.QUICK_FAMILIES)
+        else:
+            results = study.run_study(out, settings, progress, resume=resume, method=method)
+    for record in results["models"]:
+        check = record["refinement"]
+        console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
+                      f"{check['steps']} steps), largest violation {record['max_violation']:.1e}, smallest feasible "
+                      f"M_W " + ("-" if record["min_power_limit_W"] is None else f"{record['min_power_limit_W']:.3f} W")
+                      + f" ({record['min_power_status']})")
+    console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
+                  f"convergence.png in {time.perf_counter() - started:.0f} s")
+    return results
+
+
+def kelly(out: Path, spans: int, degree: int, substeps: int) -> dict:
+    """Kelly's benchmark with a live progress line; see :func:`biped_jax.studies.kelly.run_kelly`."""
+    import dataclasses
+
+    from biped_jax.studies import kelly as benchmark
+
+    settings = dataclasses.replace(benchmark.KELLY_SETTINGS, spans=spans, degree=degree, substeps=substeps)
+    started = time.perf_counter()
+    with live_progress(("outer iteration",)) as progress:
+        record = benchmark.run_kelly(out, settings, progress)
+    console.print(f"Kelly's five-link biped: {record['status']}, J = {record['cost']:.4g} N^2 m^2 s on "
+                  f"{record['steps']} Runge-Kutta steps ({record['cost_coarse']:.4g} on {record['steps_coarse']}, "
+                  f"{record['cost_refined']:.4g} on {record['steps_refined']}), largest violation "
+                  f"{record['max_violation']:.1e}; active: {', '.join(record['active_constraints'])}")
+    console.print(f"wrote {out}/kelly.json, kelly_step.png in {time.perf_counter() - started:.0f} s")
+    return record
+
+
+def donald_walk(out: Path, steps: int, faster: bool = False, resume: bool = False) -> dict:
+    """DONALD's walk (or the optimised one); see :mod:`biped_jax.studies.donald`."""
+    from biped_jax.studies import donald as donald_study
+
+    started = time.perf_counter()
+    with live_progress() as progress:
+        if faster:
+            report = donald_study.run_faster(out, steps, progress, resume=resume)
+        else:
+            report = donald_study.run_donald(out, steps, progress)
+    if faster:
+        result = report["optimisation"]
+        console.print(f"optimiser: {result['status']}, speed over steps 2-3 {result['default_speed_mps']:.4f} -> "
+                      f"{result['speed_mps']:.4f} m/s, largest scaled violation {result['max_scaled_violation']:.1e}")
+        chosen = report["candidates"][report["chosen_candidate"]]
+        console.print(f"walked with the full contact solver: {sum(c['verified'] for c in report['candidates'])} of "
+                      f"{len(report['candidates'])} candidates verified (margin >= "
+                      f"{1e3 * donald_study.VERIFIED_MARGIN:.0f} mm, no fall); chosen: "
+                      + ("the default gait" if report["chosen_candidate"] == 0
+                         else f"outer iterate {report['chosen_candidate']}")
+                      + f", {chosen['speed_mps']:.4f} m/s ({report['speed_gain_mps']:+.4f} m/s over the default)")
+    verdict = "fell" if report["fell"] else "did not fall"
+    console.print(f"DONALD: {report['steps']} touchdowns, {report['distance_m']:.3f} m forward at "
+                  f"{report['speed_mps']:.4f} m/s, {verdict}; smallest static-stability margin in single "
+                  f"support {1e3 * report['min_support_margin_m']:.1f} mm")
+    name = "donald_faster" if faster else "donald"
+    console.print(f"wrote {out}/{name}.json, {name}_walk.png, {name}_torque_speed.png, {name}_replay.npz "
+                  f"in {time.perf_counter() - started:.0f} s")
+    return report
+
+
+def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | None) -> dict:
+    """The optimal gait replayed on the humanoid; see :mod:`biped_jax.studies.humanoid`."""
+    from biped_jax.studies import humanoid as humanoid_study
+
+    started = time.perf_counter()
+    with live_progress(("humanoid: t =", f"{model}: outer")) as progress:
+        report = humanoid_study.run_humanoid(out, model, steps, settings, gaits, progress)
+    verdict = "fell" if report["fell"] else "did not fall"
+    errors = report["tracking_error_rad"]
+    console.print(f"humanoid ({report['mass_class']}) replaying {model}: {report['steps']} touchdowns, "
+                  f"{report['distance_m']:.3f} m at {report['speed_mps']:.3f} m/s (gait: "
+                  f"{report['gait_speed_mps']:.3f}), {verdict}; joint tracking error RMS "
+                  f"{1e3 * errors['rms']:.1f} mrad, max {1e3 * errors['max']:.1f} mrad outside impacts")
+    touchdowns = report["touchdowns"]
+    if touchdowns:
+        impulse, jump = (np.median([t[key] for t in touchdowns])
+                         for key in ("impulse_relative_error", "velocity_jump_relative_error"))
+        rebounds = sum(t["replay_rebound"] for t in touchdowns)
+        console.print(f"touchdowns isolated from the controller against the impact map (medians): impulse error "
+                      f"{impulse:.0%}, velocity-jump error {jump:.0%}; in the replay the landing foot rebounded "
+                      f"at {rebounds} of {len(touchdowns)}")
+    console.print(f"wrote {out}/humanoid.json, humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, "
+                  f"humanoid_replay.npz in {time.perf_counter() - started:.0f} s")
+    return report
+
+
+def codesign(out: Path, settings, iterations: int, resume: bool = False, solver: str = "sqp") -> dict:
+    """The co-design studies; see :mod:`biped_jax.studies.codesign`."""
+    from biped_jax.studies import codesign as codesign_study
+
+    started = time.perf_counter()
+    with live_progress() as progress:
+        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume,
+                                               solver_name=solver)
+    for speed, fit in results["mass_scaling"]["fits"].items():
+        console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
+                      f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
+    limits = results["speed_limits"]
+    best = int(np.argmax(np.nan_to_num(limits["max_speed_mps"], nan=-1.0)))
+    console.print(f"(b) fastest: {limits['max_speed_mps'][best]:.3f} m/s with {limits['gearheads'][best]}")
+    front = [results["pareto"]["designs"][i] for i in results["pareto"]["pareto"]]
+    console.print("(c) Pareto front: " + ", ".join(
+        f"{r['winding']} + {r['gearhead']} ({r['total_mass_kg']:.2f} kg, {r['joule_energy_per_metre_J_per_m']:.3g} J/m)"
+        for r in front))
+    optimum = results["co_optimisation"]
+    if optimum["best"] is None:
+        console.print("(d) no snapped design has a converged gait")
+    else:
+        record = optimum["snapped"][optimum["best"]]
+        console.print(f"(d) best snapped design: {', '.join(record['gearheads'])}: {record['status']}, "
+                      f"{record['joule_energy_J']:.4g} J per step")
+    console.print(f"wrote {out}/codesign.json and four figures in {time.perf_counter() - started:.0f} s")
+    return results
+
+
+def _settings(args):
+    """The gait space and grid of the command line's --spans/--degree/--substeps (--dynamics,
+    --segments where the command has them)."""
+    from biped_jax.gait.problem import GaitSettings
+    try:
+        return GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+                            dynamics=getattr(args, "dynamics", "chain"),
+                            segments=getattr(args, "segments", 1) or args.spans)
+    except ValueError as error:
+        args.parser.error(str(error))
+
+
+def run_models(args) -> int:
+    from biped_jax import robots
+    for name, (file_name, description) in robots.ROBOTS.items():
+        print(f"{name:28s} {description}  [{robots.models_dir() / file_name}]")
+    return 0
+
+
+def run_view(args) -> int:
+    from biped_jax import robots
+    try:
+        model = robots.load_mj_model(args.name)
+        replay = None if args.replay is None else load_replay(args.replay)
+    except ValueError as error:
+        args.parser.error(str(error))
+    if replay is not None and replay["qpos"].shape[1] != model.nq:
+        args.parser.error(f"--replay {args.replay}: qpos has {replay['qpos'].shape[1]} columns, "
+                          f"{args.name} has {model.nq} coordinates")
+    import mujoco
+    import mujoco.viewer
+    if replay is None:
+        mujoco.viewer.launch(model)
+        return 0
+    data = mujoco.MjData(model)
+    with mujoco.viewer.launch_passive(model, data) as viewer:
+        for t, qpos in zip(np.diff(replay["t"], prepend=0.0), replay["qpos"]):
+            data.qpos[:] = qpos
+            mujoco.mj_forward(model, data)
+            viewer.sync()
+            time.sleep(float(t))
+    return 0
+
+
+def run_drives(args) -> int:
+    from biped_jax.drives import selection as drive_selection
+    source = (args.gaits or args.out) / "trajectories.npz"
+    if not source.is_file():
+        args.parser.error(f"no gait trajectories at {source}: run `biped-jax reproduce --out "
+                          f"{args.gaits or args.out}` first")
+    try:
+        workspaces = drive_selection.load_workspaces(source)
+    except ValueError as error:
+        args.parser.error(str(error))
+    drive_selection.run_drive_study(args.out, workspaces)
+    console.print(f"wrote into {args.out}: " + ", ".join(outputs.read_manifest(args.out)["files"]))
+    return 0
+
+
+def run_step(args) -> int:
+    configure_jax()
+    heuristic_steps(args.out)
+    return 0
+
+
+def run_kelly(args) -> int:
+    configure_jax()
+    settings = _settings(args)
+    kelly(args.out, settings.spans, settings.degree, settings.substeps)
+    return 0
+
+
+def run_donald(args) -> int:
+    configure_jax()
+    donald_walk(args.out, args.steps, args.faster, args.resume)
+    return 0
+
+
+def run_humanoid(args) -> int:
+    configure_jax()
+    settings = _settings(args)
+    try:
+        humanoid_walk(args.out, args.model, args.steps, settings, args.gaits)
+    except (ValueError, FileNotFoundError) as error:
+        args.parser.error(str(error))
+    return 0
+
+
+def run_codesign(args) -> int:
+    configure_jax()
+    codesign(args.out, _settings(args), args.iterations, args.resume, args.solver)
+    return 0
+
+
+def run_reproduce(args) -> int:
+    configure_jax()
+    reproduce(args.out, _settings(args), args.resume, args.solver, args.quick)
+    return 0
+
+
+def load_replay(path: Path) -> dict:
+    """``t`` (T,) and ``qpos`` (T, nq) from a replay ``.npz``; ValueError naming the file and the fault."""
+    if not path.is_file():
+        raise ValueError(f"--replay {path}: " + ("is not a file" if path.exists() else "does not exist"))
+    try:
+        stored = outputs.read_npz(path)
+    except ValueError as error:
+        raise ValueError(f"--replay {path}: {error}") from None
+    missing = [key for key in ("t", "qpos") if key not in stored]
+    if missing:
+        raise ValueError(f"--replay {path}: no array {', '.join(missing)} (needs t and qpos)")
+    arrays = {key: np.asarray(stored[key], dtype=float) for key in ("t", "qpos")}
+    if arrays["t"].ndim != 1 or arrays["qpos"].ndim != 2 or len(arrays["t"]) != len(arrays["qpos"]) \
+            or not len(arrays["t"]):
+        raise ValueError(f"--replay {path}: needs t (T,) and qpos (T, nq) with T > 0, got shapes "
+                         f"{arrays['t'].shape} and {arrays['qpos'].shape}")
+    if not (np.all(np.isfinite(arrays["t"])) and np.all(np.isfinite(arrays["qpos"]))):
+        raise ValueError(f"--replay {path}: contains NaN or infinite values")
+    return arrays

@@ -1,0 +1,1 @@
+"""DONALD, the 4-DoF prototype: model and speed optimisation."""

@@ -1,0 +1,1 @@
+"""Motors and gearheads: the drive model and catalogue, the drive-train selection."""

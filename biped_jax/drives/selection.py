@@ -1,0 +1,292 @@
+"""Drive requirements from gait trajectories (the paper's Table 6) and the selection of a winding and
+a gear ratio (Section 2.3, Figs. 4-5).
+
+Rule for the spikes near touchdown (the paper drops them by hand): samples within ``impact_window``
+x t_f of either end of the step are left out of every requirement and check; the full maxima are
+reported beside them. "Operational" ranges are the 50th to 90th percentile, over the samples outside
+the window, of the largest joint's |torque| (or |speed|) at each instant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from biped_jax.drives import model as drives
+from biped_jax.drives.model import MNM, RPM
+from biped_jax.report import outputs
+
+IMPACT_WINDOW = 0.05
+
+
+@dataclasses.dataclass(frozen=True)
+class JointWorkspace:
+    """Sampled joint demand of one step.
+
+    Attributes:
+      t: sample times, shape (T,), s. speed: joint rates, shape (T, J), rad/s. torque: joint torques,
+      shape (T, J), N m. step_time: t_f, s.
+    """
+
+    t: np.ndarray
+    speed: np.ndarray
+    torque: np.ndarray
+    step_time: float
+
+    def outside_impacts(self, window: float = IMPACT_WINDOW) -> np.ndarray:
+        """Mask of the samples farther than window x t_f from either end, shape (T,)."""
+        s = self.t / self.step_time
+        return (s >= window) & (s <= 1 - window)
+
+
+def trapezoid_weights(t: np.ndarray) -> np.ndarray:
+    """Weights w, shape (T,), s, with w . f the trapezoidal integral of samples f at times t (T,)."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return np.ones_like(t)
+    gaps = np.diff(t)
+    return 0.5 * (np.concatenate([gaps, [0.0]]) + np.concatenate([[0.0], gaps]))
+
+
+def requirements(workspace: JointWorkspace, window: float = IMPACT_WINDOW) -> dict:
+    """Table 6 for one gait: torques in N m, speeds in rpm, power in W (SI except rpm at this edge)."""
+    inside = workspace.outside_impacts(window)
+    torque = np.abs(workspace.torque)
+    speed = np.abs(workspace.speed)
+    power = speed * torque
+    peak_torque = torque[inside].max(axis=1)
+    peak_speed = speed[inside].max(axis=1)
+    return {
+        "operational_torque_Nm": [float(np.percentile(peak_torque, 50)), float(np.percentile(peak_torque, 90))],
+        "max_torque_Nm": float(peak_torque.max()),
+        "operational_rpm": [float(np.percentile(peak_speed, 50) / RPM), float(np.percentile(peak_speed, 90) / RPM)],
+        "max_rpm": float(peak_speed.max() / RPM),
+        "max_power_W": float(power[inside].max()),
+        "max_torque_with_impacts_Nm": float(torque.max()),
+        "max_rpm_with_impacts": float(speed.max() / RPM),
+        "max_power_with_impacts_W": float(power.max()),
+        "impact_window_fraction": window,
+    }
+
+
+def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gearhead,
+                supply_voltage: float, window: float = IMPACT_WINDOW) -> dict:
+    """Checks one motor and gearhead on every joint's samples outside the impact window.
+
+    Returns {"feasible", "reason", "joule_energy_J", "mass_kg", "min_voltage_margin_V",
+    "rms_motor_torque_mNm", "max_motor_rpm", ...}; reason names the first failed check with numbers.
+    """
+    drives.check_ratio(gear.ratio)
+    inside = workspace.outside_impacts(window)
+    speed, torque = workspace.speed[inside], workspace.torque[inside]
+    motor_torque = np.asarray(drives.motor_torque(torque, speed, gear.ratio, gear.efficiency))
+    motor_speed = np.asarray(drives.motor_speed(speed, gear.ratio))
+    margin = np.asarray(drives.voltage_margin(motor_torque, motor_speed, motor, supply_voltage))
+    # the samples may be unevenly spaced (the gait's grid): time averages by the trapezoidal rule
+    weights = trapezoid_weights(workspace.t)[:, None]
+    all_torque = np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio, gear.efficiency))
+    rms_motor = np.sqrt(np.sum(weights * all_torque**2, axis=0) / weights.sum())
+    rms_output = np.sqrt(np.sum(weights * workspace.torque**2, axis=0) / weights.sum())
+    joule = float(np.sum(weights * np.asarray(drives.joule_loss(all_torque, motor))))
+    checks = [
+        (margin.min() >= 0, f"voltage: needs {supply_voltage - margin.min():.1f} V > {supply_voltage:g} V supply "
+                            f"(operating point above the speed-torque line)"),
+        (rms_motor.max() <= motor.nominal_torque,
+         f"thermal: RMS motor torque {rms_motor.max() / MNM:.1f} mNm > nominal {motor.nominal_torque / MNM:.1f} mNm"),
+        (np.abs(torque).max() <= gear.intermittent_torque,
+         f"gear: peak output torque {np.abs(torque).max():.2f} N m > intermittent {gear.intermittent_torque} N m"),
+        (rms_output.max() <= gear.continuous_torque,
+         f"gear: RMS output torque {rms_output.max():.2f} N m > continuous {gear.continuous_torque} N m"),
+        (np.abs(motor_speed).max() <= gear.max_input_speed,
+         f"gear: input speed {np.abs(motor_speed).max() / RPM:.0f} rpm > {gear.max_input_speed / RPM:.0f} rpm"),
+        (np.abs(motor_speed).max() <= motor.max_speed,
+         f"motor: speed {np.abs(motor_speed).max() / RPM:.0f} rpm > {motor.max_speed / RPM:.0f} rpm"),
+    ]
+    failed = [reason for ok, reason in checks if not ok]
+    return {"feasible_without_thermal": all(r.startswith("thermal") for r in failed),
+            "part": f"{motor.part} + {gear.part}", "motor": motor.part, "nominal_voltage_V": motor.nominal_voltage,
+            "gearhead": gear.part, "ratio": gear.ratio, "feasible": not failed,
+            "reason": failed[0] if failed else "all checks pass", "failed_checks": failed,
+            "joule_energy_J": joule, "mass_kg": motor.mass + gear.mass,
+            "min_voltage_margin_V": float(margin.min()), "rms_motor_torque_mNm": float(rms_motor.max() / MNM),
+            "max_motor_rpm": float(np.abs(motor_speed).max() / RPM)}
+
+
+def select_drive(workspaces: list[JointWorkspace], catalogue: drives.Catalogue,
+                 window: float = IMPACT_WINDOW) -> tuple[dict | None, list[dict]]:
+    """Every winding x ratio checked on all given gaits (all must pass); feasible ones ranked by Joule
+    energy per step summed over the gaits, then mass. Returns (best or None, all candidates)."""
+    candidates = []
+    for motor in catalogue.motors.values():
+        for gear in catalogue.gearheads.values():
+            results = [check_drive(w, motor, gear, catalogue.supply_voltage, window) for w in workspaces]
+            failed = [r["reason"] for r in results if not r["feasible"]]
+            candidate = dict(results[0])
+            candidate.update(feasible=not failed, reason=failed[0] if failed else "all checks pass",
+                             feasible_without_thermal=all(r["feasible_without_thermal"] for r in results),
+                             joule_energy_J=float(sum(r["joule_energy_J"] for r in results)),
+                             min_voltage_margin_V=min(r["min_voltage_margin_V"] for r in results))
+            candidates.append(candidate)
+    feasible = sorted((c for c in candidates if c["feasible"]), key=lambda c: (c["joule_energy_J"], c["mass_kg"]))
+    return (feasible[0] if feasible else None), candidates
+
+
+def best_without_thermal(candidates: list[dict]) -> dict | None:
+    """The paper's criterion (speed-torque line and gear limits, no thermal check): the best by Joule
+    energy, then mass."""
+    ok = sorted((c for c in candidates if c["feasible_without_thermal"]),
+                key=lambda c: (c["joule_energy_J"], c["mass_kg"]))
+    return ok[0] if ok else None
+
+
+def plot_motor_workspace(workspace: JointWorkspace, catalogue: drives.Catalogue, ratios, title: str, path,
+                         windings=("RE25-30V", "RE25-42V", "RE25-48V"), window: float = IMPACT_WINDOW) -> None:
+    """Required motor torque against rpm (all joints, outside the impact window) with the speed-torque
+    lines of the given windings at the supply voltage, one panel per gear ratio (paper Figs. 4-5)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    inside = workspace.outside_impacts(window)
+    figure, axes = plt.subplots(1, len(ratios), figsize=(5 * len(ratios), 4.2), constrained_layout=True)
+    for axis, ratio in zip(np.atleast_1d(axes), ratios):
+        gear = catalogue.gearhead(f"GP32A-{ratio:g}")
+        torque = np.abs(np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio,
+                                                       gear.efficiency)))[inside]
+        speed = np.abs(workspace.speed[inside]) * gear.ratio / RPM
+        axis.scatter(torque.ravel() / MNM, speed.ravel(), s=6, alpha=0.6, label="required (all joints)")
+        line_torque = np.linspace(0, max(torque.max() / MNM * 1.2, 50), 50)
+        for part in windings:
+            motor = catalogue.motor(part)
+            line = np.asarray(drives.max_speed_at_torque(line_torque * MNM, motor, catalogue.supply_voltage)) / RPM
+            axis.plot(line_torque, line, label=f"{part} at {catalogue.supply_voltage:g} V")
+        axis.set_title(f"{title}, gear {gear.ratio:g}:1")
+        axis.set_xlabel("motor torque [mNm]")
+        axis.set_ylim(bottom=0)
+        axis.grid(alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("motor speed [rpm]")
+    np.atleast_1d(axes)[0].legend(fontsize=8)
+    outputs.save_figure(figure, path, dpi=110)
+    plt.close(figure)
+
+
+# ----------------------------------------------------------------------------- the study's drive part
+
+#: Which gaits each mass class's drive must serve (paper Table 3).
+MASS_CLASS_GAITS = {"12kg": ("M1", "M2"), "18kg": ("M3", "M4")}
+PAPER_CHOICE = ("RE25-42V", "GP32A-66.22")
+
+
+def save_workspaces(path, solutions) -> None:
+    """Writes the joint demand of gait solutions (``GaitSolution``) to an .npz file."""
+    from biped_jax.gait.problem import ACTUATED_INDEX
+    arrays = {}
+    for s in solutions:
+        tr = s.trajectory
+        arrays[f"{s.name}_t"] = np.asarray(tr.t)
+        arrays[f"{s.name}_speed"] = np.asarray(tr.qd)[:, ACTUATED_INDEX]
+        arrays[f"{s.name}_torque"] = np.asarray(tr.u)
+        arrays[f"{s.name}_meta"] = np.array([s.step_time_s, s.mass_kg, s.speed_mps,
+                                             1.0 if s.status == "converged" else 0.0])
+    outputs.save_npz(path, **arrays)
+
+
+def load_workspaces(path) -> dict[str, tuple[JointWorkspace, dict]]:
+    """Reads :func:`save_workspaces`' file: name -> (workspace, {mass_kg, speed_mps, converged}).
+
+    Raises ValueError naming the file and the fault for anything else: not an ``.npz``, no gait in it,
+    a gait with missing arrays, inconsistent shapes, or NaN or infinite samples."""
+    try:
+        arrays = outputs.read_npz(path)
+    except ValueError as error:
+        raise ValueError(f"{path}: not a gait file from `biped-jax reproduce` ({error})") from None
+    names = [key[:-5] for key in arrays if key.endswith("_meta")]
+    if not names:
+        raise ValueError(f"{path}: no gait in it (expected NAME_meta, NAME_t, NAME_speed, NAME_torque arrays "
+                         "as `biped-jax reproduce` writes them)")
+    out = {}
+    for name in names:
+        missing = [f"{name}_{part}" for part in ("t", "speed", "torque") if f"{name}_{part}" not in arrays]
+        if missing:
+            raise ValueError(f"{path}: gait {name} lacks {', '.join(missing)}")
+        meta, t, speed, torque = (np.asarray(arrays[f"{name}_{part}"], dtype=float)
+                                  for part in ("meta", "t", "speed", "torque"))
+        if meta.shape != (4,) or t.ndim != 1 or len(t) < 2 or speed.shape != (len(t), 4) \
+                or torque.shape != (len(t), 4):
+            raise ValueError(f"{path}: gait {name} has shapes meta {meta.shape}, t {t.shape}, speed {speed.shape}, "
+                             f"torque {torque.shape}; expected (4,), (T,), (T, 4), (T, 4) with T >= 2")
+        for part, values in (("meta", meta), ("t", t), ("speed", speed), ("torque", torque)):
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"{path}: gait {name} has {int(np.sum(~np.isfinite(values)))} NaN or "
+                                 f"infinite values in {name}_{part}")
+        step_time, mass, speed_mps, converged = meta
+        if not (step_time > 0 and mass > 0 and speed_mps > 0):
+            raise ValueError(f"{path}: gait {name} has step time {step_time} s, mass {mass} kg, speed "
+                             f"{speed_mps} m/s; all must be positive")
+        out[name] = (JointWorkspace(t=t, speed=speed, torque=torque, step_time=float(step_time)),
+                     {"mass_kg": float(mass), "speed_mps": float(speed_mps), "converged": bool(converged)})
+    return out
+
+
+def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
+    """Table 6, the selection per mass class, the paper's choice checked, Figs. 4-5; writes
+    drives.json, drives.md, fig4_motor_M2.png and fig5_motor_M4.png into ``out``."""
+    from pathlib import Path
+    out = Path(out)
+    catalogue = drives.load_catalogue()
+    report = []
+    lines = ["# Drive train (Table 6 and the motor selection)", "",
+             f"Supply {catalogue.supply_voltage:g} V; samples within {IMPACT_WINDOW:.0%} of t_f of either "
+             "end of the step are left out (the paper's neglected spikes), their maxima shown in brackets.", ""]
+    for mass_class, names in MASS_CLASS_GAITS.items():
+        available = [n for n in names if n in gaits and gaits[n][1]["converged"]]
+        if not available:
+            report.append({"mass_class": mass_class, "error": "no converged gait"})
+            continue
+        workspaces = [gaits[n][0] for n in available]
+        merged = JointWorkspace(t=np.concatenate([w.t / w.step_time for w in workspaces]),
+                                speed=np.concatenate([w.speed for w in workspaces]),
+                                torque=np.concatenate([w.torque for w in workspaces]), step_time=1.0)
+        table6 = requirements(merged)
+        best, candidates = select_drive(workspaces, catalogue)
+        paper = next(c for c in candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
+        loose = best_without_thermal(candidates)
+        slow_best, slow_candidates = select_drive(workspaces[:1], catalogue)
+        slow_paper = next(c for c in slow_candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
+        entry = {"mass_class": mass_class, "mass_kg": gaits[available[0]][1]["mass_kg"], "gaits": available,
+                 "requirements": table6,
+                 "recommended": None if best is None else {k: best[k] for k in (
+                     "part", "motor", "gearhead", "nominal_voltage_V", "ratio", "joule_energy_J", "mass_kg")},
+                 "paper_choice": {k: paper[k] for k in ("part", "feasible", "feasible_without_thermal", "reason",
+                                                        "joule_energy_J")},
+                 "recommended_without_thermal_check": None if loose is None else loose["part"],
+                 f"recommended_for_{available[0]}_only": None if slow_best is None else slow_best["part"],
+                 f"paper_choice_for_{available[0]}_only": {k: slow_paper[k] for k in ("feasible", "reason")},
+                 "candidates": [{k: c[k] for k in ("part", "ratio", "nominal_voltage_V", "feasible",
+                                                   "feasible_without_thermal", "reason", "joule_energy_J", "mass_kg")}
+                                for c in candidates]}
+        report.append(entry)
+        r = table6
+        lines += [f"## {mass_class} ({', '.join(available)})", "",
+                  "| Table 6 | value |", "|---|---|",
+                  "| Operational torque | {:.2f}-{:.2f} N m |".format(*r["operational_torque_Nm"]),
+                  f"| Maximum torque | {r['max_torque_Nm']:.2f} N m ({r['max_torque_with_impacts_Nm']:.2f}) |",
+                  f"| Operational rpm | {r['operational_rpm'][0]:.0f}-{r['operational_rpm'][1]:.0f} rpm |",
+                  f"| Maximum rpm | {r['max_rpm']:.0f} rpm ({r['max_rpm_with_impacts']:.0f}) |",
+                  f"| Maximum power | {r['max_power_W']:.1f} W ({r['max_power_with_impacts_W']:.1f}) |", "",
+                  f"- Recommended (all checks): **{best['part'] if best else 'none feasible'}**"
+                  + (f", Joule energy {best['joule_energy_J']:.2f} J per step over the gaits" if best else ""),
+                  f"- Paper's criterion (speed-torque line and gear limits, no thermal check): "
+                  f"**{loose['part'] if loose else 'none feasible'}**",
+                  f"- The paper's 42 V + 66:1: {'feasible' if paper['feasible'] else 'fails: ' + paper['reason']}"
+                  f" (under the paper's criterion: {'passes' if paper['feasible_without_thermal'] else 'fails'})",
+                  f"- For {available[0]} alone: {slow_best['part'] if slow_best else 'none feasible'} "
+                  f"(the paper's choice: {'feasible' if slow_paper['feasible'] else slow_paper['reason']})", "",
+                  f"{sum(c['feasible'] for c in candidates)} of {len(candidates)} winding x ratio pairs pass.", ""]
+    outputs.write_json(out / "drives.json", report)
+    outputs.write_text(out / "drives.md", "\n".join(lines) + "\n")
+    for name, figure in (("M2", "fig4_motor_M2.png"), ("M4", "fig5_motor_M4.png")):
+        if name in gaits:
+            plot_motor_workspace(gaits[name][0], catalogue, (51, 66.22, 79), name, out / figure)
+    return {"drives": report}

@@ -1,0 +1,240 @@
+"""Closed-form dynamics of a planar chain of hinges: the pinned five-link biped in a few dense operations.
+
+MJX's general pipeline walks the kinematic tree level by level with many small operations per step;
+their adjoints dominate a rollout's gradient on a CPU (``benchmarks/RESULTS.md``, profile). For a chain
+whose joints all turn about the world y axis, the same quantities have short closed forms:
+
+- angle of body i: theta_i = sum over its joints j (ancestors and itself) of s_j q_j, with s_j = +-1
+  the joint axis's y component;
+- body origins p_i = sum over ancestors-or-self j of R(theta_parent(j)) pos_j, centres of mass
+  c_i = p_i + R(theta_i) ipos_i, with R the rotation about +y in the (x, z) plane;
+- Jacobian of a point r on body i: column j is s_j (d_z, -d_x), d = r - p_j, for j an ancestor-or-self;
+- M = sum_i m_i Jc_i^T Jc_i + I_yy,i w_i^T w_i + diag(armature) (w_i: row of angular Jacobian);
+- bias (Coriolis, centrifugal, gravity) = sum_i m_i Jc_i^T (Jdot_i qd - g) (planar rotation has no
+  velocity product in the angular terms);
+- ground force at the pinned root = sum_i m_i (a_ci - g): the only external force besides gravity.
+
+The model's parameters (masses, inertias, positions, armature, damping) are read from the ``mjx.Model``
+at each call, so designs applied as arrays (``biped_jax.robots.design``) work unchanged under ``jit`` and
+``vmap``; the chain's structure (parents, axis signs, sites, actuators) is fixed at construction.
+Every quantity is checked against MJX in ``tests/test_planar_chain.py`` (to 1e-10).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PlanarChain:
+    """The fixed structure of a planar chain (numpy; bodies 1..nbody-1 of the model, one hinge each).
+
+    Attributes:
+      ancestors: (n, n), 1 where body column j is body row i or one of its ancestors.
+      parent: (n,), index of each body's parent body (-1: the world).
+      axis_sign: (n,), the y component (+-1) of each body's hinge axis.
+      actuated_dof: (n_actuators,), the dof each actuator drives (gear 1).
+      site_body: name -> body index of each site. site_index: name -> the model's site id.
+    """
+
+    ancestors: np.ndarray
+    parent: np.ndarray
+    axis_sign: np.ndarray
+    actuated_dof: np.ndarray
+    site_body: dict
+    site_index: dict
+
+    @property
+    def size(self) -> int:
+        return len(self.parent)
+
+    @classmethod
+    def from_model(cls, model) -> "PlanarChain":
+        """The structure of an ``mjx.Model`` (or ``mujoco.MjModel``) with concrete structure arrays.
+
+        Raises ValueError naming the first feature outside a planar hinge chain about y.
+        """
+        nbody = int(model.nbody)
+        n = nbody - 1
+        jnt_type = np.asarray(model.jnt_type)
+        if int(model.njnt) != n or np.any(jnt_type != mujoco.mjtJoint.mjJNT_HINGE):
+            raise ValueError(f"a planar chain needs one hinge per body, got joint types {jnt_type.tolist()}")
+        joint_body = np.asarray(model.jnt_bodyid)
+        if not np.array_equal(joint_body, np.arange(1, nbody)):
+            raise ValueError(f"joint j must belong to body j + 1, got bodies {joint_body.tolist()}")
+        axis = np.asarray(model.jnt_axis)
+        if not np.allclose(np.abs(axis[:, 1]), 1.0) or not np.allclose(axis[:, [0, 2]], 0.0):
+            raise ValueError(f"every hinge must turn about +-y, got axes {axis.tolist()}")
+        if not np.allclose(np.asarray(model.jnt_pos), 0.0):
+            raise ValueError("every hinge must sit at its body's origin")
+        identity = np.array([1.0, 0.0, 0.0, 0.0])
+        for name in ("body_quat", "body_iquat"):
+            if not np.allclose(np.asarray(getattr(model, name))[1:], identity):
+                raise ValueError(f"{name} must be the identity for a planar chain")
+        parent = np.asarray(model.body_parentid)[1:] - 1
+        ancestors = np.zeros((n, n))
+        for i in range(n):
+            j = i
+            while j >= 0:
+                ancestors[i, j] = 1.0
+                j = parent[j]
+        trnid = np.asarray(model.actuator_trnid)[:, 0]
+        gear = np.asarray(model.actuator_gear)
+        if not np.allclose(gear[:, 0], 1.0) or not np.allclose(gear[:, 1:], 0.0):
+            raise ValueError("actuators must drive their joints with gear 1")
+        names = [bytes(model.names[int(model.name_siteadr[k]):]).split(b"\0", 1)[0].decode()
+                 for k in range(int(model.nsite))]
+        return cls(ancestors=ancestors, parent=parent, axis_sign=np.sign(axis[:, 1]),
+                   actuated_dof=np.asarray(model.jnt_dofadr)[trnid],
+                   site_body={name: int(np.asarray(model.site_bodyid)[k]) - 1 for k, name in enumerate(names)},
+                   site_index={name: k for k, name in enumerate(names)})
+
+
+def _rotate(theta: jax.Array, v: jax.Array) -> jax.Array:
+    """Rotation about +y of (x, z) vectors: theta (...,), v (..., 2) -> (..., 2)."""
+    c, s = jnp.cos(theta), jnp.sin(theta)
+    return jnp.stack([c * v[..., 0] + s * v[..., 1], -s * v[..., 0] + c * v[..., 1]], axis=-1)
+
+
+def _xz(a: jax.Array) -> jax.Array:
+    return a[..., jnp.array([0, 2])]
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ChainState:
+    """Kinematics of one configuration and velocity (world x-z plane, SI).
+
+    Attributes:
+      angle: body angles theta, (n,), rad. origin: body origins (= joint positions), (n, 2), m.
+      com: centres of mass, (n, 2), m. com_jacobian: (n, 2, n). angular_jacobian: (n, n).
+      com_bias_acceleration: Jdot qd of each centre of mass, (n, 2), m/s^2.
+    """
+
+    angle: jax.Array
+    origin: jax.Array
+    com: jax.Array
+    com_jacobian: jax.Array
+    angular_jacobian: jax.Array
+    com_bias_acceleration: jax.Array
+
+
+def _lever_columns(points: jax.Array, origin: jax.Array, angular_jacobian: jax.Array) -> jax.Array:
+    """Jacobian-like columns s_j (d_z, -d_x), d = point_i - origin_j, masked to body i's joints:
+    points (i, 2) on bodies i, origin (n, 2), angular_jacobian (i, n) -> (i, 2, n)."""
+    d = points[:, None, :] - origin[None, :, :]  # (i, j, 2)
+    columns = jnp.stack([d[..., 1], -d[..., 0]], axis=-1) * angular_jacobian[..., None]
+    return jnp.swapaxes(columns, 1, 2)
+
+
+def kinematics(chain: PlanarChain, model, q: jax.Array, qd: jax.Array) -> ChainState:
+    """Positions, Jacobians and velocity-product accelerations of the chain at (q, qd), each (n,)."""
+    ancestors = jnp.asarray(chain.ancestors)
+    angular_jacobian = ancestors * jnp.asarray(chain.axis_sign)[None, :]
+    angle = angular_jacobian @ q
+    has_parent = chain.parent >= 0
+    parent_angle = jnp.where(jnp.asarray(has_parent), angle[np.maximum(chain.parent, 0)], 0.0)
+    origin = ancestors @ _rotate(parent_angle, _xz(model.body_pos[1:]))
+    com = origin + _rotate(angle, _xz(model.body_ipos[1:]))
+    com_jacobian = _lever_columns(com, origin, angular_jacobian)
+    # d/dt of the columns: d/dt (c_i - p_j) = v_ci - v_pj. Joint j's origin is fixed on body j (its own
+    # hinge gives it no lever), so its velocity comes from the same columns.
+    origin_velocity = _lever_columns(origin, origin, angular_jacobian) @ qd
+    com_velocity = com_jacobian @ qd
+    com_bias_acceleration = _lever_columns(com_velocity, origin_velocity, angular_jacobian) @ qd
+    return ChainState(angle=angle, origin=origin, com=com, com_jacobian=com_jacobian,
+                      angular_jacobian=angular_jacobian, com_bias_acceleration=com_bias_acceleration)
+
+
+def _gravity(model) -> jax.Array:
+    return _xz(model.opt.gravity)
+
+
+def mass_matrix(chain: PlanarChain, model, state: ChainState) -> jax.Array:
+    """Joint-space inertia with armature, (n, n), kg m^2."""
+    mass = model.body_mass[1:]
+    inertia = model.body_inertia[1:, 1]
+    translational = jnp.einsum("i,iaj,iak->jk", mass, state.com_jacobian, state.com_jacobian)
+    rotational = jnp.einsum("i,ij,ik->jk", inertia, state.angular_jacobian, state.angular_jacobian)
+    return translational + rotational + jnp.diag(model.dof_armature)
+
+
+def bias_force(chain: PlanarChain, model, state: ChainState, qd: jax.Array) -> jax.Array:
+    """Coriolis, centrifugal and gravity terms less the passive (damping) force, (n,), N m: MJX's
+    ``qfrc_bias - qfrc_passive`` (no springs in the chain)."""
+    mass = model.body_mass[1:]
+    acceleration = state.com_bias_acceleration - _gravity(model)[None, :]
+    return jnp.einsum("i,iaj,ia->j", mass, state.com_jacobian, acceleration) + model.dof_damping * qd
+
+
+def root_force(chain: PlanarChain, model, state: ChainState, qdd: jax.Array) -> jax.Array:
+    """Force (F_x, F_z) the world exerts on the root body through its hinge, (2,), N: the rate of
+    change of the chain's linear momentum less gravity."""
+    mass = model.body_mass[1:]
+    acceleration = state.com_jacobian @ qdd + state.com_bias_acceleration - _gravity(model)[None, :]
+    return jnp.einsum("i,ia->a", mass, acceleration)
+
+
+def site_positions(chain: PlanarChain, model, state: ChainState, names) -> jax.Array:
+    """World (x, z) of named sites, (len(names), 2), m."""
+    unknown = [name for name in names if name not in chain.site_index]
+    if unknown:
+        raise ValueError(f"the chain has no site {unknown[0]!r}")
+    bodies = np.array([chain.site_body[name] for name in names])
+    local = _xz(model.site_pos[np.array([chain.site_index[name] for name in names])])
+    return state.origin[bodies] + _rotate(state.angle[bodies], local)
+
+
+def site_motion(chain: PlanarChain, model, q: jax.Array, qd: jax.Array, name: str) -> tuple[jax.Array, jax.Array]:
+    """World (x, z) position (2,), m, and velocity (2,), m/s, of a named site at (q, qd)."""
+    def position(q_):
+        return site_positions(chain, model, kinematics(chain, model, q_, jnp.zeros_like(q_)), (name,))[0]
+    return jax.jvp(position, (q,), (qd,))
+
+
+def site_jacobian(chain: PlanarChain, model, q: jax.Array, name: str) -> jax.Array:
+    """d(site x, z)/dq of a named site, (2, n)."""
+    return jax.jacfwd(lambda q_: site_motion(chain, model, q_, jnp.zeros_like(q_), name)[0])(q)
+
+
+def actuated_force(chain: PlanarChain, u: jax.Array) -> jax.Array:
+    """Generalised force of actuator torques u (n_actuators,) -> (n,), N m."""
+    return jnp.zeros(chain.size, u.dtype).at[chain.actuated_dof].add(u)
+
+
+def forward_dynamics(chain: PlanarChain, model, q, qd, u) -> tuple[jax.Array, ChainState]:
+    """qdd (n,), rad/s^2, under actuator torques u, with the state's kinematics."""
+    state = kinematics(chain, model, q, qd)
+    qdd = jnp.linalg.solve(mass_matrix(chain, model, state),
+                           actuated_force(chain, u) - bias_force(chain, model, state, qd))
+    return qdd, state
+
+
+def euler(q: jax.Array, qd: jax.Array, qdd: jax.Array, dt) -> tuple[jax.Array, jax.Array]:
+    """Semi-implicit Euler, as MJX's ``euler``: the rates first, then the angles with the new rates."""
+    qd_next = qd + dt * qdd
+    return q + dt * qd_next, qd_next
+
+
+def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, controls: jax.Array):
+    """Single support under zero-order-hold torques, semi-implicit Euler as MJX's ``euler`` with
+    ``model.opt.timestep`` (explicit damping: MJX's with ``EULERDAMP`` disabled, identical without
+    damping). q0, qd0 (n,); controls (T, n_actuators). Returns q, qd (T + 1, n), qdd (T, n) and the
+    root (stance) force (T, 2)."""
+    dt = model.opt.timestep
+
+    @jax.checkpoint
+    def step(state, u):
+        q, qd = state
+        qdd, kin = forward_dynamics(chain, model, q, qd, u)
+        force = root_force(chain, model, kin, qdd)
+        q_next, qd_next = euler(q, qd, qdd, dt)
+        return (q_next, qd_next), (q_next, qd_next, qdd, force)
+
+    _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
+    return (jnp.concatenate([q0[None], q]), jnp.concatenate([qd0[None], qd]), qdd, force)

@@ -1,0 +1,151 @@
+"""The rollout of one step: the stance angle's zero dynamics by Runge-Kutta under the prescribed
+joints (closed-form chain or MJX, a small strategy object), torques, forces, the touchdown."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import planar_chain
+from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
+from biped_jax.gait.splines import grid, reference, simpson_weights, stance_nodes
+from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
+
+mjx = hs.mjx
+
+
+# ----------------------------------------------------------------------------- dynamics
+
+def _assemble(theta, actuated):
+    """Pinned coordinates (..., 5) from the stance coordinate (...,) and the actuated (..., 4)."""
+    full = jnp.zeros(actuated.shape[:-1] + (5,), actuated.dtype)
+    return full.at[..., 0].set(theta).at[..., ACTUATED_INDEX].set(actuated)
+
+
+class _ChainDynamics:
+    """Mass matrix, bias force, stance force, site positions, the swing foot's motion and the
+    touchdown from :mod:`biped_jax.dynamics.planar_chain` (closed forms, no MJX)."""
+
+    def __init__(self, biped: hs.PlanarBiped):
+        self.chain = planar_chain.PlanarChain.from_model(biped.pinned)
+        self.pinned = biped.pinned
+
+    def terms(self, q, qd):
+        kinematics = planar_chain.kinematics(self.chain, self.pinned, q, qd)
+        return (planar_chain.mass_matrix(self.chain, self.pinned, kinematics),
+                planar_chain.bias_force(self.chain, self.pinned, kinematics, qd), kinematics)
+
+    def outputs(self, q, qd, qdd, kinematics):
+        force = planar_chain.root_force(self.chain, self.pinned, kinematics, qdd)
+        return force, planar_chain.site_positions(self.chain, self.pinned, kinematics, _SITES)
+
+    def swing_foot(self, q, qd):
+        return planar_chain.site_motion(self.chain, self.pinned, q, qd, "foot2")
+
+    def touchdown(self, q, qd):
+        return hs.chain_touchdown(self.chain, self.pinned, q, qd)
+
+
+class _MjxDynamics:
+    """The same quantities from MJX's forward pipeline."""
+
+    def __init__(self, biped: hs.PlanarBiped):
+        self.biped, self.pinned = biped, biped.pinned
+        self.template = mjx.make_data(biped.pinned)
+        self.sites = jnp.array([mjx.name2id(biped.pinned, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name)
+                                for name in _SITES])
+
+    def terms(self, q, qd):
+        data = mjx.fwd_velocity(self.pinned, mjx.fwd_position(self.pinned, self.template.replace(qpos=q, qvel=qd)))
+        return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
+
+    def outputs(self, q, qd, qdd, data):
+        force = hs.stance_force(self.pinned, data.replace(qacc=qdd))
+        return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
+
+    def swing_foot(self, q, qd):
+        return hs.swing_foot(self.pinned, q, qd)
+
+    def touchdown(self, q, qd):
+        return hs.touchdown(self.biped, q, qd)
+
+
+_SITES = GAIT_SITES
+
+
+def stance_acceleration(mass, bias, actuated_acceleration):
+    """The zero dynamics: theta_dd from the unactuated row of M qdd + bias = B u. mass (5, 5), bias =
+    qfrc_bias - qfrc_passive (5,), actuated_acceleration (4,) in (H1, K1, H2, K2) order."""
+    a = ACTUATED_INDEX
+    return -(mass[0, a] @ actuated_acceleration + bias[0]) / mass[0, 0]
+
+
+def actuated_torque(mass, bias, qdd):
+    """Torques (H1, K1, H2, K2) from the actuated rows of M qdd + bias = B u, (4,), N m."""
+    a = ACTUATED_INDEX
+    return mass[a] @ qdd + bias[a]
+
+
+def _dynamics(biped, settings):
+    return (_ChainDynamics if settings.dynamics == "chain" else _MjxDynamics)(biped)
+
+
+def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
+    """One rollout of the step (pure; vmap over x and model): the prescribed joints, the stance
+    angle's zero dynamics by RK4 from every shooting node over its segment (all segments at once),
+    the outputs at every grid point (a segment's first point takes its node's state)."""
+    biped = hs.with_design(biped, model.design)
+    dynamics = _dynamics(biped, settings)
+    step_time = model.step_length / model.speed
+    segments, per_segment = settings.segments, settings.steps // settings.segments
+    s = grid(settings)
+    midpoints = 0.5 * (s[1:] + s[:-1])
+    scale = jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
+    at_grid = jnp.stack(reference(x, settings, s)) * scale          # (3, T + 1, 4): q_a, qd_a, qdd_a
+    at_mid = jnp.stack(reference(x, settings, midpoints)) * scale   # (3, T, 4)
+    h = jnp.asarray(np.diff(s)) * step_time
+
+    def acceleration(theta, theta_dot, ref):
+        q, qd = _assemble(theta, ref[0]), _assemble(theta_dot, ref[1])
+        mass, bias, _ = dynamics.terms(q, qd)
+        return stance_acceleration(mass, bias, ref[2])
+
+    def rk4(state, inputs):
+        start, middle, end, dt = inputs
+        theta, rate = state
+        k1 = (rate, acceleration(theta, rate, start))
+        k2 = (rate + 0.5 * dt * k1[1], acceleration(theta + 0.5 * dt * k1[0], rate + 0.5 * dt * k1[1], middle))
+        k3 = (rate + 0.5 * dt * k2[1], acceleration(theta + 0.5 * dt * k2[0], rate + 0.5 * dt * k2[1], middle))
+        k4 = (rate + dt * k3[1], acceleration(theta + dt * k3[0], rate + dt * k3[1], end))
+        theta_next = theta + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+        rate_next = rate + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        return (theta_next, rate_next), jnp.stack([theta_next, rate_next])
+
+    def by_segment(a):  # (3, T, 4) -> (segments, T / segments, 3, 4)
+        return jnp.swapaxes(a, 0, 1).reshape(segments, per_segment, 3, 4)
+
+    def shoot(node, starts, middles, ends, dt):
+        return jax.lax.scan(rk4, (node[0], node[1]), (starts, middles, ends, dt))[1]
+
+    nodes = stance_nodes(x, settings)
+    after = jax.vmap(shoot)(nodes, by_segment(at_grid[:, :-1]), by_segment(at_mid),
+                            by_segment(at_grid[:, 1:]), h.reshape(segments, per_segment))  # (segments, T / segments, 2)
+    stance = jnp.concatenate([jnp.concatenate([nodes[:, None], after[:, :-1]], axis=1).reshape(-1, 2),
+                              after[-1, -1:]])                            # (T + 1, 2)
+
+    def outputs(theta_k, rate_k, ref):
+        q, qd = _assemble(theta_k, ref[0]), _assemble(rate_k, ref[1])
+        mass, bias, state = dynamics.terms(q, qd)
+        qdd = _assemble(stance_acceleration(mass, bias, ref[2]), ref[2])
+        force, positions = dynamics.outputs(q, qd, qdd, state)
+        return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
+
+    q, qd, qdd, u, force, positions = jax.vmap(outputs)(stance[:, 0], stance[:, 1], jnp.swapaxes(at_grid, 0, 1))
+    _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
+    return GaitTrajectory(
+        t=jnp.asarray(s) * step_time, weights=jnp.asarray(simpson_weights(settings)) * step_time,
+        q=q, qd=qd, qdd=qdd, u=u, ground_force=force, swing_foot=positions[:, 0], heights=positions[:, 1:, 1],
+        touchdown=dynamics.touchdown(q[-1], qd[-1]), swing_foot_velocity=foot_velocity,
+        continuity=after[:-1, -1] - nodes[1:])

@@ -1,0 +1,202 @@
+"""The gait problem's settings (reference space, grid, limits), one problem's data (:class:`GaitModel`,
+a pytree batched over designs) and the simulated step (:class:`GaitTrajectory`)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax import checks
+from biped_jax.drives import model as drive_model
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.robots.design import Design
+from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
+from biped_jax.robots.specs import PLANAR_SPECS
+
+#: The single-support dynamics a rollout can use (:class:`GaitSettings`).
+DYNAMICS = ("chain", "mjx")
+
+#: Friction coefficient standing for "no friction limit" (Kelly's benchmark), the largest accepted.
+NO_FRICTION_LIMIT = 1e3
+#: Power limit standing for "no power limit" (Kelly's benchmark, the co-design's mass study), W.
+NO_POWER_LIMIT = 1e6
+
+#: The refinement check re-simulates a solution on a grid this many times finer.
+REFINEMENT = 4
+
+
+def _check_number(name: str, value, low: float, high: float, unit: str) -> None:
+    checks.number_in(f"GaitSettings.{name}", value, low, high, unit)
+
+
+@dataclasses.dataclass(frozen=True)
+class GaitSettings:
+    """What fixes array shapes and the problem's constant bounds (static: one compile per settings).
+
+    Attributes:
+      spans: knot spans of the joint references' B-splines.
+      degree: their polynomial degree (2 to 7; 3, cubic, by default: accelerations continuous).
+      substeps: Runge-Kutta steps per knot span, even (Simpson's rule pairs them); the grid has
+        ``spans * substeps`` steps and every path constraint is checked at its points.
+      grading: knot placement between uniform (0) and cosine-clustered at both impacts (1), where the
+        optimal gait moves fastest.
+      torque_bound: |u_i| <= torque_bound, N m.
+      friction: friction coefficient of the stance foot and the impact.
+      knee_max: largest knee flexion, rad (the smallest is 0).
+      dynamics: "chain" (the closed-form planar-chain dynamics of :mod:`biped_jax.dynamics.planar_chain`, equal
+        to MJX's to rounding and several times faster to compile and differentiate) or "mjx" (MJX's
+        forward pipeline). The touchdown impact map is MJX's in both.
+      segments: shooting segments of the stance angle's zero dynamics, dividing ``spans``: 1 is single
+        shooting from the start state; more start each segment (a run of spans / segments knot
+        spans) from its own stance state, a decision variable, with continuity as equality
+        constraints (multiple shooting: the unstable stance pendulum cannot drift over a segment).
+
+    Raises ValueError naming the field, its value and the allowed range.
+    """
+
+    spans: int = 16
+    degree: int = 3
+    substeps: int = 8
+    grading: float = 0.5
+    torque_bound: float = 20.0
+    friction: float = 0.8
+    knee_max: float = 2.6
+    dynamics: str = "chain"
+    segments: int = 1
+
+    def __post_init__(self):
+        if self.dynamics not in DYNAMICS:
+            raise ValueError(f"GaitSettings.dynamics must be one of {DYNAMICS}, got {self.dynamics!r}")
+        checks.gait_space(self.spans, self.degree, self.substeps, prefix="GaitSettings.")
+        checks.integer_in("GaitSettings.segments", self.segments, 1, self.spans)
+        if self.spans % self.segments:
+            raise ValueError(f"GaitSettings.segments must divide spans ({self.spans}), got {self.segments}")
+        if isinstance(self.grading, bool) or not isinstance(self.grading, (int, float)) \
+                or not 0.0 <= self.grading <= 1.0:
+            raise ValueError(f"GaitSettings.grading must be in [0, 1], got {self.grading!r}")
+        _check_number("torque_bound", self.torque_bound, 0.0, math.inf, "N m")
+        # 1e3 is the "no friction limit" of Kelly's benchmark (kelly.NO_FRICTION_LIMIT): the cone then
+        # only keeps F_z >= 0; a coefficient between 10 and that is a typo more likely than a foot
+        _check_number("friction", self.friction, 0.0, NO_FRICTION_LIMIT, "(friction coefficient; 1e3: no limit)")
+        _check_number("knee_max", self.knee_max, 0.0, math.pi, "rad")
+
+    @property
+    def control_points(self) -> int:
+        """Control points per joint, the mirrored first one included."""
+        return self.spans + self.degree
+
+    @property
+    def size(self) -> int:
+        """Length of the decision vector: the stance state at every segment's start (the shooting
+        nodes, 2 segments) and the free control points of the four joints."""
+        return 2 * self.segments + 4 * (self.control_points - 1)
+
+    @property
+    def steps(self) -> int:
+        """Runge-Kutta steps per walking step (grid intervals)."""
+        return self.spans * self.substeps
+
+
+def refined(settings: GaitSettings, factor: int = REFINEMENT) -> GaitSettings:
+    """The same problem and decision vector on a grid ``factor`` times finer."""
+    return dataclasses.replace(settings, substeps=settings.substeps * factor)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class GaitModel:
+    """One problem instance (traced: batch these to solve many models with one program).
+
+    Attributes:
+      design: link masses etc. of the biped.
+      speed: average forward speed v, m/s.
+      step_length: L, m.
+      power_limit: M_W, W.
+      drives: the joints' drives. The objective is their Joule energy, the integral of R i^2 (J); with
+        :func:`~biped_jax.drives.model.ideal_drives` (the default) that is the paper's J = integral of
+        u^T u (N^2 m^2 s) and the voltage constraint is inactive.
+    """
+
+    design: Design
+    speed: jax.Array
+    step_length: jax.Array
+    power_limit: jax.Array
+    drives: drive_model.JointDrives
+
+
+def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> None:
+    """Raises ValueError naming a speed (m/s), power limit (W) or step length (m) that is not a finite
+    positive number (scalars or arrays, one value per problem), or a step beyond the legs' reach."""
+    for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
+                              ("step_length", step_length, "m")):
+        values = np.asarray(value, dtype=float)
+        if not np.all(np.isfinite(values) & (values > 0)):
+            raise ValueError(f"{name} must be positive, got {values.tolist()} ({unit}; finite)")
+    reach = 2 * PLANAR_SPECS[mass_class].leg_length
+    if np.any(np.asarray(step_length) >= reach):
+        raise ValueError(f"step_length {np.asarray(step_length).tolist()} m is beyond the legs' reach "
+                         f"(< {reach:.3g} m)")
+
+
+def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
+    """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
+    drives (the paper's problem; ``biped_jax.codesign.problem.gait_model`` fits real ones); raises ValueError
+    naming a non-positive speed, limit or length, or a step beyond the legs' reach."""
+    for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
+                              ("step_length", step_length, "m")):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+            raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
+    design = hs.planar_design(mass_class)  # first: it names an unknown mass class
+    check_problem(speed, power_limit, step_length, mass_class)
+    return GaitModel(design=design, speed=jnp.asarray(float(speed)),
+                     step_length=jnp.asarray(float(step_length)),
+                     power_limit=jnp.asarray(float(power_limit)),
+                     drives=drive_model.ideal_drives())
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class GaitTrajectory:
+    """The simulated step, sampled at the T + 1 grid points (t = 0 and t = t_f included).
+
+    Attributes:
+      t: sample times, shape (T + 1,), s (uniform within each knot span).
+      weights: composite Simpson weights of the samples, shape (T + 1,), s: the integral of f over the
+        step is weights . f.
+      q, qd, qdd: pinned states and accelerations, shape (T + 1, 5).
+      u: torques (H1, K1, H2, K2), shape (T + 1, 4), N m.
+      ground_force: stance (F_x, F_z), shape (T + 1, 2), N.
+      swing_foot: (x, z) of the swing foot, shape (T + 1, 2), m. heights: z of hip, knee1, knee2,
+        shape (T + 1, 3), m.
+      touchdown: the impact at t_f and the next step's start.
+      swing_foot_velocity: (x, z) at touchdown, shape (2,), m/s.
+      continuity: the multiple shooting's defects, shape (segments - 1, 2): the stance angle (rad)
+        and rate (rad/s) integrated to the end of segment j minus the node of segment j + 1.
+    """
+
+    t: jax.Array
+    weights: jax.Array
+    q: jax.Array
+    qd: jax.Array
+    qdd: jax.Array
+    u: jax.Array
+    ground_force: jax.Array
+    swing_foot: jax.Array
+    heights: jax.Array
+    touchdown: hs.Touchdown
+    swing_foot_velocity: jax.Array
+    continuity: jax.Array
+
+    @property
+    def joint_speed(self) -> jax.Array:
+        """Actuated joint rates (H1, K1, H2, K2) at every sample, shape (T + 1, 4), rad/s."""
+        return self.qd[..., ACTUATED_INDEX]
+
+    @property
+    def joint_power(self) -> jax.Array:
+        """qdot_i u_i, shape (T + 1, 4), W."""
+        return self.joint_speed * self.u

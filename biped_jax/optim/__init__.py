@@ -1,0 +1,1 @@
+"""The optimisers: the batched augmented Lagrangian and SLSQP."""

@@ -1,0 +1,1 @@
+"""Output files, run manifests, compile profiles and the XLA alarm filter."""

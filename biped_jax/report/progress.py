@@ -1,0 +1,91 @@
+"""The command line's live display: one bar per counted stage, a status line naming the program XLA is
+compiling, and a log of every finished count (so that a log piped to a file shows the counts too)."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+
+from rich.console import Console
+
+console = Console(stderr=True)
+
+
+@contextlib.contextmanager
+def live_progress(quiet_prefixes: tuple[str, ...] = ()):
+    """A live display: a status line (the latest message, or the program being compiled, with the
+    elapsed time) and one bar per counted stage (done of all, elapsed, estimated time left). Yields
+    ``progress(message, task=None)``; ``task`` = (stage, done, total) moves that stage's bar, and every
+    change of a count is logged (so a log piped to a file shows the counts too). Every message that
+    does not start with one of ``quiet_prefixes`` (frequent per-iteration lines) is logged as well.
+    Program names come from JAX's compile log (:func:`biped_jax.report.compile_profile.profile_compiles`,
+    which the command line runs around every command)."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        SpinnerColumn,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.text import Text
+
+    class StageOnly(ProgressColumn):  # a column shown on the stages' bars, not on the status line
+        def __init__(self, column):
+            self.column = column
+            super().__init__()
+
+        def render(self, task):
+            return self.column.render(task) if task.total is not None else Text("")
+
+    started = time.perf_counter()
+    # the estimate of time left: the pace over the stage so far (problems take minutes, not seconds)
+    bars = Progress(SpinnerColumn(), TextColumn("{task.description}"),
+                    *map(StageOnly, (BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"),
+                                     TimeRemainingColumn())), console=console, speed_estimate_period=24 * 3600.0)
+    status = bars.add_task("starting", total=None)
+    stages: dict[str, int] = {}
+    latest = ["starting"]
+
+    def show(text: str) -> None:
+        bars.update(status, description=f"[{time.perf_counter() - started:5.0f} s] {text}")
+
+    def compiling(name: str | None) -> None:
+        show(latest[0] if name is None else f"compiling {name} (XLA; the first run of a program)")
+
+    def progress(message: str, task: tuple[str, int, int] | None = None) -> None:
+        latest[0] = message
+        show(message)
+        if task is not None:
+            stage, done, total = task
+            if stage not in stages:  # the stages run one after another: a new one ends those before
+                for earlier in stages.values():
+                    bars.update(earlier, completed=bars.tasks[earlier].total)
+                stages[stage] = bars.add_task(stage, total=total)
+            before = bars.tasks[stages[stage]].completed
+            bars.update(stages[stage], completed=done, total=total)
+            if done != before:
+                left = bars.tasks[stages[stage]].time_remaining
+                console.log(f"{stage}: {done} of {total} done" + ("" if left is None or done >= total
+                                                                  else f", about {left / 60:.1f} min left"))
+        if not (quiet_prefixes and message.startswith(quiet_prefixes)):
+            console.log(message)
+
+    listeners.append(compiling)
+    try:
+        with bars:
+            yield progress
+    finally:
+        listeners.remove(compiling)
+
+
+#: Who hears of compilations (the live display while one is open): see :func:`compile_listener`.
+listeners: list = []
+
+
+def compile_listener(name: str | None) -> None:
+    """Tells the open live displays that ``name`` is compiling (None: compiling ended)."""
+    for listener in listeners:
+        listener(name)

@@ -1,0 +1,1 @@
+"""One module per command-line study (``biped-jax <command>``)."""

@@ -1,0 +1,346 @@
+"""The paper's study (Section 2.2): models M1-M4, their optimal steps, the 20 W question and the
+smallest power limit at which each model still walks."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax.drives import selection as drive_selection
+from biped_jax.gait import problem as gait
+from biped_jax.gait import report as gait_report
+from biped_jax.gait import solver as gait_solver
+from biped_jax.gait.solver import GaitSolution, GaitSolver
+from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import sqp
+from biped_jax.report import outputs
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperModel:
+    """A row of the paper's Table 3 with the power limit of Section 2.2."""
+
+    name: str
+    mass_class: str
+    speed: float
+    power_limit: float
+
+
+#: Table 3 of the paper, power limits of Section 2.2 (planar-step.md).
+PAPER_MODELS = (PaperModel("M1", "12kg", 0.417, 20.0), PaperModel("M2", "12kg", 0.555, 20.0),
+                PaperModel("M3", "18kg", 0.417, 25.0), PaperModel("M4", "18kg", 0.555, 40.0))
+
+
+def paper_gait_models(rows, power_limits=None, step_length: float = 0.2) -> list[gait.GaitModel]:
+    """The gait problems of ``rows`` (:data:`PAPER_MODELS` or some of them), at their own power limits
+    or at ``power_limits`` (W, one per row); step length in m."""
+    limits = power_limits if power_limits is not None else [r.power_limit for r in rows]
+    return [gait.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
+
+
+def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], models: list[gait.GaitModel],
+                         progress: Callable[[int, dict], None] | None = None,
+                         coarse: GaitSolver | None = None) -> list[dict]:
+    """The smallest power limit M_W per model (all models in one call): SLSQP minimising the limit
+    itself over the gait (:meth:`GaitSolver.minimise_power_limit`), started from each model's converged
+    gait at its own limit (``solutions[b]`` solved for ``models[b]``); with ``coarse``, first in its
+    space (the gaits carried there by least squares), then from there in ``solver``'s (continuation in
+    the space: an iteration in the 4x coarser space costs a tenth).
+
+    A gait whose SLSQP stopped at its iteration limit still gives a limit (an upper bound, feasible on
+    both grids, with that status); a gait infeasible on either grid gives none.
+
+    Returns per model {"min_power_limit_W": the smallest limit whose gait keeps it on the solve grid
+    and on the 4x finer one (None when the gait found is not converged there, or the model had no
+    converged gait to start from), "min_power_solve_grid_W": the limit reached on the solve grid,
+    "min_power_status": the gait's status at that limit, "min_power_cost": its J (not minimised),
+    "min_power_gait": the :class:`GaitSolution`}.
+    """
+    usable = [b for b, s in enumerate(solutions) if s.status == al.CONVERGED]
+    found = {}
+    if usable:
+        rows = [solutions[b] for b in usable]
+        models = [models[b] for b in usable]
+        names = [s.name for s in rows]
+        x0 = np.stack([s.x for s in rows])
+
+        def tagged(stage):
+            return (lambda i, row: progress(i, {**row, "space": stage})) if progress else None
+        if coarse is not None:
+            carried = np.stack([gait.project(s.x, solver.settings, coarse.settings, s.trajectory) for s in rows])
+            first = coarse.minimise_power_limit(names, models, carried, progress=tagged("coarse space"))
+            # from the coarse space's gait and limit (2 % above it: the carried gait is close, not equal)
+            carried_on = [c.max_violation <= gait_solver.VIOLATION_TOLERANCE for c in first]
+            x0 = np.stack([gait.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
+                           for c, s, ok in zip(first, rows, carried_on)])
+            models = [dataclasses.replace(m, power_limit=jnp.asarray(1.02 * c.power_limit_W)) if ok else m
+                      for m, c, ok in zip(models, first, carried_on)]
+        minima = solver.minimise_power_limit(names, models, x0, progress=tagged("study space"))
+        found = dict(zip(usable, minima))
+    records = []
+    for b, solution in enumerate(solutions):
+        if b not in found:
+            records.append({"min_power_limit_W": None, "min_power_solve_grid_W": None,
+                            "min_power_status": f"no converged gait at the model's own limit ({solution.status})",
+                            "min_power_cost": None, "min_power_gait": None})
+            continue
+        minimum = found[b]
+        feasible = minimum.status in (al.CONVERGED, al.ITERATION_LIMIT) and minimum.refinement["passed"] \
+            and minimum.max_violation <= gait_solver.VIOLATION_TOLERANCE
+        records.append({"min_power_limit_W": minimum.power_limit_W if feasible else None,
+                        "min_power_solve_grid_W": minimum.refinement["solve_grid_limit_W"],
+                        "min_power_status": minimum.status, "min_power_cost": minimum.cost,
+                        "min_power_gait": minimum})
+    return records
+
+
+#: The continuation pipeline's space (:func:`solve_paper_models`; opt-in, not yet the study's default,
+#: see README "Continuation in the power limit"): 16 cubic knot spans, the stance angle shot in every
+#: span (multiple shooting).
+CONTINUATION_SETTINGS = gait.GaitSettings(segments=16)
+
+#: Its solver settings at the model's limit: the Gauss-Newton preconditioner refreshed every 10 L-BFGS
+#: iterations with the full Gauss-Newton step after each refresh, 80 iterations per inner problem, the
+#: penalty from 1e3 growing 3x at most per update, and IPOPT-like acceptable termination (feasible and J
+#: settled to 1e-4 over three multiplier updates).
+CONTINUATION_OPTIONS = dataclasses.replace(gait_solver.GAIT_SOLVER_OPTIONS, precondition_every=10, max_inner=80,
+                                           cap_first_step=False, max_outer=30, penalty_initial=1e3,
+                                           penalty_growth=3.0, acceptable_change=1e-4)
+
+#: Its start families: those landing on a flexed knee and the plain straight-stance one.
+CONTINUATION_FAMILIES = gait.IMPACT_FAMILIES + gait.START_FAMILIES[:1]
+
+#: The first stage's "no power limit", W (the power constraint is scaled by it: far out of reach).
+FREE_POWER_LIMIT = 1e4
+
+
+def solve_paper_models(solver: GaitSolver, families=CONTINUATION_FAMILIES, rows=PAPER_MODELS,
+                       progress: Callable[[str], None] | None = None) -> tuple[list[GaitSolution], list]:
+    """M1-M4 by continuation in the power limit (opt-in; measured in ``benchmarks/vs_collocation.py``):
+    every family without a power limit (one batch of all models per family, so one compiled program
+    serves every stage), the cheapest converged gait per model (else the least violated) then solved at
+    the model's limit with ``solver``'s options (:data:`CONTINUATION_OPTIONS` intended, in
+    :data:`CONTINUATION_SETTINGS`' space).
+
+    Returns the solutions at the paper's limits (each with ``starts``: every family's outcome without
+    the limit and the one carried on) and the free-stage solutions per family."""
+    say = progress or (lambda message: None)
+    names = [r.name for r in rows]
+    free_models = paper_gait_models(rows, [FREE_POWER_LIMIT] * len(rows))
+    free_solver = solver.with_options(penalty_initial=100.0, penalty_growth=10.0, max_inner=40, max_outer=20)
+    by_family = []
+    for k, family in enumerate(families):
+        x0 = jnp.stack([gait.initial_guess(m, solver.settings, solver.leg_length, family=family)
+                        for m in free_models])
+        by_family.append(free_solver.solve(names, free_models, x0=x0, progress=_iterations(
+            say, f"no power limit, start {k + 1}/{len(families)} ({family.name})", free_solver.options)))
+    chosen, spreads = [], []
+    for b in range(len(rows)):
+        group = [solutions[b] for solutions in by_family]
+        feasible = [s for s in group if s.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT)]
+        best = min(feasible, key=lambda s: s.cost) if feasible else min(group, key=lambda s: s.max_violation)
+        chosen.append(best.x)
+        spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation,
+                         "power_limit_W": FREE_POWER_LIMIT, "carried_on": s is best}
+                        for f, s in zip(families, group)])
+    solutions = solver.solve(names, paper_gait_models(rows), x0=jnp.asarray(np.stack(chosen)),
+                             progress=_iterations(say, "at the paper's power limits", solver.options))
+    for solution, spread in zip(solutions, spreads):
+        solution.starts = spread
+    return solutions, by_family
+
+
+def _number(value, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def _iterations(say, label: str, options: al.SolverOptions):
+    return lambda i, row: say(f"{label}: outer iteration {i + 1}/{options.max_outer}, largest scaled violation "
+                              f"{np.max(row['violation']):.1e}, J = " + ", ".join(f"{c:.3f}" for c in row["cost"]))
+
+
+#: The study's reference space and grid: 48 cubic knot spans graded 0.5 towards the impacts, the stance
+#: angle shot in every span, 4 Runge-Kutta steps per span (192 in all). Against the collocation peer
+#: (README, "Gait optimiser"): 16 spans left J 1.3-1.7 % above it (M2 at 20 W: 2.8506, grid converged),
+#: 32 spans 0.3-1.0 % (M4 at 20 W: 7.0165, the same from five starts: the space's limit, not a local
+#: optimum), 48 spans 0.1-0.5 %. The grid: 8 steps per span of 16 (128 in all) left M2's power 0.216 W
+#: (1.08 % of M_W) over the limit between grid points (a 4x finer grid), 192 steps keep that within the
+#: refinement check's 1 %, and a Jacobian's cost grows with the steps, not the spans.
+STUDY_SETTINGS = gait.GaitSettings(spans=48, segments=48, substeps=4)
+
+#: The study's start families: every heuristic family, the flexed-impact ones included.
+STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
+
+#: ``biped-jax reproduce --quick``: a first look in a few minutes, not the study: 8 knot spans (the
+#: starts in 2), three start families; every file it writes says so (:data:`QUICK_STAMP`).
+QUICK_SETTINGS = gait.GaitSettings(spans=8, segments=8, substeps=6)
+QUICK_FAMILIES = (gait.START_FAMILIES[1], gait.IMPACT_FAMILIES[0], gait.IMPACT_FAMILIES[1])
+QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start families; coarse, not the "
+               "study's result")
+
+#: SLSQP in the coarse space (choosing the start per model) and in the study's space, there on a
+#: working set of the inequality rows (:attr:`biped_jax.optim.sqp.SQPOptions.working_margin`: an iteration
+#: costs half; measured 2026-12-03 the same iterates from the coarse optima, M4 at 20 W from its 40 W
+#: gait in 253 iterations instead of 568, J 6.97807 instead of 6.97814).
+COARSE_SQP_OPTIONS = sqp.SQPOptions(max_iterations=200)
+WORKING_MARGIN = 1.5
+SQP_OPTIONS = sqp.SQPOptions(working_margin=WORKING_MARGIN)
+#: SLSQP minimising the power limit (:func:`minimal_power_limits`): in the coarse space to convergence
+#: (160-210 iterations, about 15 s a model); in the study's space 100 iterations. There SLSQP does not
+#: converge (measured 2026-12-02 in 48 spans, 4 x 400 iterations, 18 min: every model at the cap, the
+#: best feasible limits 1.43 / 2.33 / 2.17 / 3.47 W; after 100 iterations within 1-4 % of those on the
+#: solve grid), so the limit reported is an upper bound either way, and the study takes the shorter stage.
+POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400)
+FINE_POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=100, working_margin=WORKING_MARGIN)
+
+#: The study's solvers: "sqp" (SLSQP, the default) or "al" (the batched augmented Lagrangian of the
+#: first two generations, kept for comparison and for batches of designs).
+METHODS = ("sqp", "al")
+
+
+@dataclasses.dataclass(frozen=True)
+class StudySolvers:
+    """The study's solvers of one method, sharing compiled programs where they share a space.
+
+    Attributes:
+      fine: in the study's space (every reported gait).
+      coarse: in the 4x coarser space, choosing each model's start (no refinement check).
+      power, coarse_power: ``fine`` and ``coarse`` with SLSQP's options for the smallest power limit
+        (either method).
+      families: the heuristic start families solved in the coarse space.
+    """
+
+    fine: GaitSolver
+    coarse: GaitSolver
+    power: GaitSolver
+    coarse_power: GaitSolver
+    families: tuple
+
+
+def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS, method: str = "sqp") -> StudySolvers:
+    """The solvers of :func:`run_study` (and of ``benchmarks/vs_collocation.py``) for ``method``
+    (one of :data:`METHODS`); raises ValueError naming another."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    fine = GaitSolver(settings)
+    # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
+    coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False)
+    if method == "sqp":
+        return StudySolvers(fine.using(SQP_OPTIONS), coarse.using(COARSE_SQP_OPTIONS),
+                            fine.using(FINE_POWER_SQP_OPTIONS), coarse.using(POWER_SQP_OPTIONS), STUDY_FAMILIES)
+    return StudySolvers(fine, coarse, fine.using(FINE_POWER_SQP_OPTIONS), coarse.using(POWER_SQP_OPTIONS),
+                        gait.START_FAMILIES)
+
+
+def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
+              progress: Callable[..., None] | None = None, resume: bool = False, method: str = "sqp",
+              families: tuple | None = None) -> dict:
+    """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
+    space: :func:`biped_jax.gait.solver.solve_multistart`), M1-M4 at 20 W (warm-started)
+    and the minimal power limits; writes
+    results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
+    trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
+    stage is kept in ``out/stages`` (:func:`biped_jax.report.outputs.stage`); ``resume`` takes the
+    stages found there for these settings instead of solving them again. ``families`` replaces the
+    method's start families. ``progress(message, task=None)`` hears every iteration;
+    ``task`` = (stage, problems done, problems in the stage) counts the work
+    (:func:`biped_jax.report.progress.live_progress`)."""
+    solvers = study_solvers(settings, method)
+    solver, coarse, families = solvers.fine, solvers.coarse, families or solvers.families
+    say = progress or (lambda message, task=None: None)
+    out.mkdir(parents=True, exist_ok=True)
+    key = {"settings": dataclasses.asdict(settings), "method": method, "families": [f.name for f in families]}
+    names = [r.name for r in PAPER_MODELS]
+
+    def report(label):
+        if method == "sqp":  # the stage's count: problems done (one SLSQP solve after another)
+            return lambda i, row: say(
+                f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at "
+                f"most {solver.options.max_iterations}, J = {row['cost'][0]:.4f}, scaled violation "
+                f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
+        return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {solver.options.max_outer}, "
+                                  f"largest scaled violation {np.max(row['violation']):.1e} (done below "
+                                  f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}",
+                                  task=(label, i + 1, solver.options.max_outer))
+
+    def done(label, result, solved=len):  # solved(result): how many problems the stage solved
+        count = solved(result)
+        say(f"{label}: done", task=(label, count, count))
+        return result
+
+    say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
+        f"spans), then the best in {settings.spans} spans ({'SLSQP' if method == 'sqp' else 'augmented Lagrangian'})")
+    solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
+        solver, names, paper_gait_models(PAPER_MODELS), families=families, coarse=coarse,
+        progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row),
+        finished=lambda part, count: say(f"M1-M4 {part}: done", task=(f"M1-M4 {part}", count, count))),
+        resume, say)
+    say("the four models at M_W = 20 W")
+    at_20 = outputs.stage(out, "at_20W", key, lambda: done("20 W", solver.solve(
+        names, paper_gait_models(PAPER_MODELS, [20.0] * 4), x0=jnp.stack([jnp.asarray(s.x) for s in solutions]),
+        progress=report("20 W"))), resume, say)
+    # A gait feasible at 20 W is feasible at every looser limit: where it costs less than the solution
+    # found at the paper's limit, that solution was a worse local optimum; restart from it. (Cheaper by
+    # more than 1e-4 relative: a solve ended on acceptable termination is settled to about 1e-6-1e-5.)
+    better = [b for b, (s, t) in enumerate(zip(solutions, at_20)) if t.status == al.CONVERGED
+              and s.power_limit_W >= 20.0 and t.cost < s.cost * (1 - 1e-4)]
+    if better:
+        say("restarting " + ", ".join(names[b] for b in better) + " from their cheaper 20 W gaits")
+        starts = jnp.stack([jnp.asarray(at_20[b].x if b in better else s.x) for b, s in enumerate(solutions)])
+        restarted = outputs.stage(out, "restart", key, lambda: done("restart", solver.solve(
+            names, paper_gait_models(PAPER_MODELS), x0=starts, progress=report("restart"))), resume, say)
+        solutions = [r if (b in better and r.status == al.CONVERGED and r.cost < s.cost) else s
+                     for b, (s, r) in enumerate(zip(solutions, restarted))]
+    say("smallest feasible power limit per model")
+    def power_report(i, row):
+        space = row.get("space", "study space")
+        label, cap = f"smallest power limit ({space})", (
+            solvers.coarse_power if space == "coarse space" else solvers.power).options.max_iterations
+        say(f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at most "
+            f"{cap}, M_W / start = {row['cost'][0]:.4f}, scaled violation "
+            f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
+    minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
+        "smallest power limit (study space)", minimal_power_limits(
+            solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
+            progress=power_report),
+        lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
+
+    records = []
+    for solution, minimum in zip(solutions, minimal):
+        record = gait_report.results_record(solution)
+        gait_at_minimum = minimum["min_power_gait"]
+        record.update(minimum, min_power_gait=None if gait_at_minimum is None
+                      else gait_report.results_record(gait_at_minimum))
+        records.append(record)
+    results = {
+        "models": records,
+        "at_20W": [gait_report.results_record(s) for s in at_20],
+        "settings": dataclasses.asdict(settings),
+        "solver": {"method": method, **dataclasses.asdict(solver.options)},
+        "violation_tolerance_own_units": 1e-4,
+    }
+    outputs.write_json(out / "results.json", results)
+    tables = ["# The paper's four models (layout of Tables 4 and 5)", ""]
+    tables += [gait_report.markdown_table(s) for s in solutions]
+    tables += ["## At M_W = 20 W (the paper: M3 and M4 not solvable)", "",
+               f"| model | status | J | largest violation | J on {solver.refined_settings.steps} steps "
+               "| largest power there [% of M_W over] |", "|---|---|---|---|---|---|"]
+    tables += [f"| {s.name} | {s.status} | {s.cost:.4g} | {s.max_violation:.1e} | {s.refinement['cost']:.4g} "
+               f"| {100 * s.refinement['power_margin_fraction']:.2f} |" for s in at_20]
+    tables += ["", "## Smallest power limit with a feasible gait (SLSQP minimising M_W)", "",
+               f"| model | smallest M_W [W] (kept on {solver.refined_settings.steps} steps) | on the solve grid [W] "
+               "| status | J of that gait |", "|---|---|---|---|---|"]
+    tables += [f"| {n} | {_number(m['min_power_limit_W'], '.3f')} | {_number(m['min_power_solve_grid_W'], '.3f')} "
+               f"| {m['min_power_status']} | {_number(m['min_power_cost'], '.4g')} |" for n, m in zip(names, minimal)]
+    outputs.write_text(out / "tables.md", "\n".join(tables) + "\n")
+    gait_report.plot_figure_2(solutions, out / "fig2_trajectories.png")
+    gait_report.plot_figure_3(solutions, out / "fig3_torque_rpm.png")
+    gait_report.plot_convergence(solutions, out / "convergence.png")
+    say("drive train: Table 6, selection, Figs. 4-5")
+    drive_selection.save_workspaces(out / "trajectories.npz", solutions)
+    results.update(drive_selection.run_drive_study(out, drive_selection.load_workspaces(out / "trajectories.npz")))
+    return results
