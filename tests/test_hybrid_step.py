@@ -54,64 +54,68 @@ def test_ground_reaction_of_a_robot_at_rest_is_its_weight(biped12):
     np.testing.assert_allclose(force, [0.0, weight], atol=EXACT * weight)
 
 
-def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout):
-    """F = m_total (a_com - g), with a_com differentiated from the centre of mass position; and the
-    rollout's per-step force is the same function of its states."""
-    pinned = biped12.pinned
-    assert hs.STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
-                                                mujoco.mjtObj.mjOBJ_BODY, "shank1")
+@pytest.fixture(scope="module")
+def single_support(biped12):
+    """One compiled program (MJX run op by op compiles every operation alone, for a minute) of
+    everything the single-support checks below compare at a state (q, qd) under torques u: the
+    pinned chain's qdd and ground force, Newton's law for the centre of mass, and the floating
+    model's accelerations under that force with what the pinned chain says they are."""
+    pinned, floating = biped12.pinned, biped12.floating
+    shank1 = mujoco.mj_name2id(robots.load_mj_model("biped5_floating_12kg"), mujoco.mjtObj.mjOBJ_BODY, "shank1")
     com = functools.partial(hs.center_of_mass, pinned)
 
-    def newton(q, qd, qdd):
+    def newton(q, qd, qdd):  # F = m_total (a_com - g), a_com differentiated from the position
         com_velocity = lambda q_: jax.jvp(com, (q_,), (qd,))[1]  # noqa: E731
         acceleration = jax.jvp(com, (q,), (qdd,))[1] + jax.jvp(com_velocity, (q,), (qd,))[1]
         return (jnp.sum(pinned.body_mass) * (acceleration - pinned.opt.gravity))[jnp.array([0, 2])]
 
-    @jax.jit  # one compiled program: the acceleration under u, and the force both ways
-    def both(q, qd, u):
-        qdd = hs.stance_acceleration(pinned, q, qd, u)
-        return qdd, hs.ground_reaction(pinned, q, qd, qdd), newton(q, qd, qdd)
-
-    _, force, expected = both(Q, QD, U)
-    np.testing.assert_allclose(force, expected, rtol=1e-10)
-    trajectory = rollout(pinned, Q, QD, jnp.tile(U, (200, 1)))
-    k = 57
-    qdd, _, expected = both(trajectory.q[k], trajectory.qd[k], U)
-    np.testing.assert_allclose(trajectory.qdd[k], qdd, rtol=1e-10)
-    np.testing.assert_allclose(trajectory.ground_force[k], expected, rtol=1e-10)
-
-
-@pytest.mark.slow
-def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(biped12):
-    """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
-    equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
-    pinned, floating = biped12.pinned, biped12.floating
-    shank1 = mujoco.mj_name2id(robots.load_mj_model("biped5_floating_12kg"), mujoco.mjtObj.mjOBJ_BODY, "shank1")
-
-    @jax.jit  # one compiled program (op by op, MJX's passes compile for a minute)
-    def accelerations():
-        qdd = hs.stance_acceleration(pinned, Q, QD, U)
-        force = hs.ground_reaction(pinned, Q, QD, qdd)
-        qf, qfd = hs.pinned_to_floating(pinned, Q, QD)
-
+    def floating_accelerations(q, qd, u, qdd, force):  # the force applied to the free-floating model
+        qf, qfd = hs.pinned_to_floating(pinned, q, qd)
         data = mjx.kinematics(floating, mjx.make_data(floating).replace(qpos=qf))
         foot = hs.site_position(floating, qf, "foot1")
         force3 = jnp.array([force[0], 0.0, force[1]])
         torque3 = jnp.cross(foot - data.xipos[shank1], force3)
         xfrc = jnp.zeros((floating.nbody, 6)).at[shank1].set(jnp.concatenate([force3, torque3]))
-        data = mjx.make_data(floating).replace(qpos=qf, qvel=qfd, ctrl=U, xfrc_applied=xfrc)
+        data = mjx.make_data(floating).replace(qpos=qf, qvel=qfd, ctrl=u, xfrc_applied=xfrc)
         qfdd = mjx.forward(floating, data).qacc
 
-        def hip(q):
-            return hs.site_position(pinned, q, "hip")[jnp.array([0, 2])]
-        hip_velocity = lambda q: jax.jvp(hip, (q,), (QD,))[1]  # noqa: E731
-        hip_acceleration = jax.jvp(hip, (Q,), (qdd,))[1] + jax.jvp(hip_velocity, (Q,), (QD,))[1]
+        def hip(q_):
+            return hs.site_position(pinned, q_, "hip")[jnp.array([0, 2])]
+        hip_velocity = lambda q_: jax.jvp(hip, (q_,), (qd,))[1]  # noqa: E731
+        hip_acceleration = jax.jvp(hip, (q,), (qdd,))[1] + jax.jvp(hip_velocity, (q,), (qd,))[1]
         stance, knee1, hip1, hip2, knee2 = qdd
-        expected = jnp.concatenate([hip_acceleration,
-                                    jnp.stack([stance - knee1 - hip1, hip1, knee1, hip2, knee2])])
+        expected = jnp.concatenate([hip_acceleration, jnp.stack([stance - knee1 - hip1, hip1, knee1, hip2, knee2])])
         return qfdd, expected
 
-    qfdd, expected = accelerations()
+    @jax.jit
+    def at(q, qd, u):
+        qdd = hs.stance_acceleration(pinned, q, qd, u)
+        force = hs.ground_reaction(pinned, q, qd, qdd)
+        return {"qdd": qdd, "force": force, "newton": newton(q, qd, qdd),
+                "floating": floating_accelerations(q, qd, u, qdd, force)}
+    return at
+
+
+def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout, single_support):
+    """F = m_total (a_com - g), with a_com differentiated from the centre of mass position; and the
+    rollout's per-step force is the same function of its states."""
+    pinned = biped12.pinned
+    assert hs.STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
+                                                mujoco.mjtObj.mjOBJ_BODY, "shank1")
+    here = single_support(Q, QD, U)
+    np.testing.assert_allclose(here["force"], here["newton"], rtol=1e-10)
+    trajectory = rollout(pinned, Q, QD, jnp.tile(U, (200, 1)))
+    k = 57
+    there = single_support(trajectory.q[k], trajectory.qd[k], U)
+    np.testing.assert_allclose(trajectory.qdd[k], there["qdd"], rtol=1e-10)
+    np.testing.assert_allclose(trajectory.ground_force[k], there["newton"], rtol=1e-10)
+
+
+@pytest.mark.slow
+def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(single_support):
+    """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
+    equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
+    qfdd, expected = single_support(Q, QD, U)["floating"]
     np.testing.assert_allclose(qfdd, expected, atol=1e-8 * float(jnp.abs(expected).max()))
 
 

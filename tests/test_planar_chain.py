@@ -142,6 +142,10 @@ def test_unknown_dynamics_is_rejected():
         gait.GaitSettings(dynamics="rk4")
     with pytest.raises(SystemExit):
         cli.main(["codesign", "--dynamics", "rk4"])
+    from biped_jax.dynamics import stance
+    assert tuple(stance.DYNAMICS) == gait.DYNAMICS  # one strategy per name the settings accept
+    with pytest.raises(ValueError, match="dynamics must be one of .* got 'rk4'"):
+        stance.stance_dynamics(None, "rk4")
 
 
 def test_a_model_that_is_not_a_planar_chain_is_rejected(biped12):

@@ -231,20 +231,28 @@ def stance_rollout(pinned, q0: jax.Array, qd0: jax.Array, controls: jax.Array) -
     controls = jnp.asarray(controls)
     if controls.ndim != 2 or controls.shape[1] != N_ACTUATED:
         raise ValueError(f"controls must have shape (T, {N_ACTUATED}), got {controls.shape}")
-    template = mjx.make_data(pinned)
-    integrate = _INTEGRATORS[int(pinned.opt.integrator)]
 
     @jax.checkpoint  # store (q, qd) per step for the backward pass, not the whole mjx.Data
     def step(state, u):
-        q, qd = state
-        data = mjx.forward(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
-        force = stance_force(pinned, data)
-        data = integrate(pinned, data)
-        return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc, force)
+        state, (qdd, force) = stance_step(pinned, state, u)
+        return state, (*state, qdd, force)
 
     _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
     return StanceTrajectory(q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]),
                             qdd=qdd, u=controls, ground_force=force)
+
+
+def stance_step(pinned, state: tuple[jax.Array, jax.Array], u: jax.Array):
+    """One step of single support in MJX under torques u (H1, K1, H2, K2) (N m), with the model's own
+    integrator and ``opt.timestep``: ``state`` = (q, qd), shapes (5,), rad and rad/s. Returns (the next
+    state, (qdd (5,) rad/s^2, the ground force (F_x, F_z) N)), both from the step's one forward pass, as
+    ``mjx.step`` would; traceable, for ``lax.scan`` (:func:`stance_rollout`, the heuristic step's
+    controller in the loop; :class:`biped_jax.dynamics.stance.MjxDynamics`)."""
+    q, qd = state
+    data = mjx.forward(pinned, mjx.make_data(pinned).replace(qpos=q, qvel=qd, ctrl=u))
+    force = stance_force(pinned, data)
+    data = _INTEGRATORS[int(pinned.opt.integrator)](pinned, data)
+    return (data.qpos, data.qvel), (data.qacc, force)
 
 
 # mjx.step's integrator dispatch, split so the ground force comes from the same forward pass.

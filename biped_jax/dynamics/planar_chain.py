@@ -221,20 +221,27 @@ def euler(q: jax.Array, qd: jax.Array, qdd: jax.Array, dt) -> tuple[jax.Array, j
     return q + dt * qd_next, qd_next
 
 
+def stance_step(chain: PlanarChain, model, state: tuple[jax.Array, jax.Array], u: jax.Array):
+    """One step of single support under actuator torques u, semi-implicit Euler with
+    ``model.opt.timestep`` (as MJX's ``euler`` without damping): ``state`` = (q, qd), (n,) each.
+    Returns (the next state, (qdd (n,), the root (stance) force (2,))), as
+    :func:`biped_jax.dynamics.hybrid_step.stance_step` does in MJX."""
+    q, qd = state
+    qdd, kin = forward_dynamics(chain, model, q, qd, u)
+    force = root_force(chain, model, kin, qdd)
+    return euler(q, qd, qdd, model.opt.timestep), (qdd, force)
+
+
 def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, controls: jax.Array):
     """Single support under zero-order-hold torques, semi-implicit Euler as MJX's ``euler`` with
     ``model.opt.timestep`` (explicit damping: MJX's with ``EULERDAMP`` disabled, identical without
     damping). q0, qd0 (n,); controls (T, n_actuators). Returns q, qd (T + 1, n), qdd (T, n) and the
     root (stance) force (T, 2)."""
-    dt = model.opt.timestep
 
     @jax.checkpoint
     def step(state, u):
-        q, qd = state
-        qdd, kin = forward_dynamics(chain, model, q, qd, u)
-        force = root_force(chain, model, kin, qdd)
-        q_next, qd_next = euler(q, qd, qdd, dt)
-        return (q_next, qd_next), (q_next, qd_next, qdd, force)
+        state, (qdd, force) = stance_step(chain, model, state, u)
+        return state, (*state, qdd, force)
 
     _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
     return (jnp.concatenate([q0[None], q]), jnp.concatenate([qd0[None], qd]), qdd, force)

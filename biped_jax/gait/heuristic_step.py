@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import stance
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
 
@@ -91,28 +92,27 @@ def simulate(biped: hs.PlanarBiped, gait: HeuristicGait):
     """
     q0, qd0, end = start_state(gait)
     dt = 1.5 * gait.step_time / gait.steps
-    pinned = hs.with_timestep(biped.pinned, dt)
+    # MJX's pipeline (the step checks the hybrid step's MJX physics; the closed-form chain reads the
+    # model's structure, which a traced biped does not have)
+    dynamics = stance.MjxDynamics(dataclasses.replace(biped, pinned=hs.with_timestep(biped.pinned, dt)))
     actuated = jnp.asarray(ACTUATED_INDEX)  # (H1, K1, H2, K2) in pinned coordinates
     start = q0[actuated]
-    template = hs.mjx.make_data(pinned)
 
     def step(state, _):
         q, qd = state
         angle, rate = reference(gait, start, end, q[0], qd[0], q0[0])
         u = gait.stiffness * (angle - q[actuated]) + gait.damping * (rate - qd[actuated])
-        data = hs.mjx.forward(pinned, template.replace(qpos=q, qvel=qd, ctrl=u))
-        force = hs.stance_force(pinned, data)
-        data = hs.mjx.euler(pinned, data)
-        return (data.qpos, data.qvel), (data.qpos, data.qvel, data.qacc, u, force)
+        state, (qdd, force) = stance.stance_step(dynamics, state, u)
+        return state, (*state, qdd, u, force)
 
     _, (q, qd, qdd, u, force) = jax.lax.scan(step, (q0, qd0), None, length=gait.steps)
     trajectory = hs.StanceTrajectory(q=jnp.concatenate([q0[None], q]),
                                      qd=jnp.concatenate([qd0[None], qd]), qdd=qdd, u=u,
                                      ground_force=force)
-    foot, foot_velocity = jax.vmap(hs.swing_foot, (None, 0, 0))(pinned, trajectory.q, trajectory.qd)
+    foot, foot_velocity = jax.vmap(dynamics.swing_foot)(trajectory.q, trajectory.qd)
     after_mid_step = jnp.arange(gait.steps + 1) * dt > 0.5 * gait.step_time
     crossing = after_mid_step & (foot[:, 1] <= 0.0) & (foot_velocity[:, 1] < 0.0)
     index = jnp.where(jnp.any(crossing), jnp.argmax(crossing), -1)
     safe = jnp.maximum(index, 0)
-    impact = hs.touchdown(biped, trajectory.q[safe], trajectory.qd[safe])
+    impact = dynamics.touchdown(trajectory.q[safe], trajectory.qd[safe])
     return trajectory, dt, index, impact, foot, foot_velocity

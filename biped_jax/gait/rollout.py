@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.dynamics import planar_chain
+from biped_jax.dynamics.stance import stance_dynamics
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
 from biped_jax.gait.splines import grid, reference, simpson_weights, stance_nodes
 from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
@@ -24,55 +24,6 @@ def _assemble(theta, actuated):
     return full.at[..., 0].set(theta).at[..., ACTUATED_INDEX].set(actuated)
 
 
-class _ChainDynamics:
-    """Mass matrix, bias force, stance force, site positions, the swing foot's motion and the
-    touchdown from :mod:`biped_jax.dynamics.planar_chain` (closed forms, no MJX)."""
-
-    def __init__(self, biped: hs.PlanarBiped):
-        self.chain = planar_chain.PlanarChain.from_model(biped.pinned)
-        self.pinned = biped.pinned
-
-    def terms(self, q, qd):
-        kinematics = planar_chain.kinematics(self.chain, self.pinned, q, qd)
-        return (planar_chain.mass_matrix(self.chain, self.pinned, kinematics),
-                planar_chain.bias_force(self.chain, self.pinned, kinematics, qd), kinematics)
-
-    def outputs(self, q, qd, qdd, kinematics):
-        force = planar_chain.root_force(self.chain, self.pinned, kinematics, qdd)
-        return force, planar_chain.site_positions(self.chain, self.pinned, kinematics, _SITES)
-
-    def swing_foot(self, q, qd):
-        return planar_chain.site_motion(self.chain, self.pinned, q, qd, "foot2")
-
-    def touchdown(self, q, qd):
-        return hs.chain_touchdown(self.chain, self.pinned, q, qd)
-
-
-class _MjxDynamics:
-    """The same quantities from MJX's forward pipeline."""
-
-    def __init__(self, biped: hs.PlanarBiped):
-        self.biped, self.pinned = biped, biped.pinned
-        self.template = mjx.make_data(biped.pinned)
-        self.sites = jnp.array([mjx.name2id(biped.pinned, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name)
-                                for name in _SITES])
-
-    def terms(self, q, qd):
-        data = mjx.fwd_velocity(self.pinned, mjx.fwd_position(self.pinned, self.template.replace(qpos=q, qvel=qd)))
-        return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
-
-    def outputs(self, q, qd, qdd, data):
-        force = hs.stance_force(self.pinned, data.replace(qacc=qdd))
-        return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
-
-    def swing_foot(self, q, qd):
-        return hs.swing_foot(self.pinned, q, qd)
-
-    def touchdown(self, q, qd):
-        return hs.touchdown(self.biped, q, qd)
-
-
-_SITES = GAIT_SITES
 
 
 def stance_acceleration(mass, bias, actuated_acceleration):
@@ -88,8 +39,6 @@ def actuated_torque(mass, bias, qdd):
     return mass[a] @ qdd + bias[a]
 
 
-def _dynamics(biped, settings):
-    return (_ChainDynamics if settings.dynamics == "chain" else _MjxDynamics)(biped)
 
 
 def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
@@ -97,7 +46,7 @@ def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: Ga
     angle's zero dynamics by RK4 from every shooting node over its segment (all segments at once),
     the outputs at every grid point (a segment's first point takes its node's state)."""
     biped = hs.with_design(biped, model.design)
-    dynamics = _dynamics(biped, settings)
+    dynamics = stance_dynamics(biped, settings.dynamics)
     step_time = model.step_length / model.speed
     segments, per_segment = settings.segments, settings.steps // settings.segments
     s = grid(settings)
