@@ -11,9 +11,8 @@ from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.dynamics.stance import stance_dynamics
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
 from biped_jax.gait.splines import grid, reference, simpson_weights, stance_nodes
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
+from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
-mjx = hs.mjx
 
 
 # ----------------------------------------------------------------------------- dynamics
