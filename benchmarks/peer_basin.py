@@ -33,10 +33,11 @@ def fitted_start(peer: dict, settings) -> np.ndarray:
     from scipy.interpolate import CubicHermiteSpline
 
     from biped_jax.gait import problem as gait
+    from biped_jax.robots import planar_biped
     phi, phid, t = peer["phi"], peer["phid"], peer["t"]
     joints = (_PEER_TO_JOINTS @ phi) * _JOINT_SIGNS[:, None]
     points = np.linalg.lstsq(gait.basis(settings, t / t[-1])[0], joints.T, rcond=None)[0]
-    points[-1] = 0.5 * (points[-1] + points[0][gait.SWAP])
+    points[-1] = 0.5 * (points[-1] + points[0][planar_biped.SWAP])
     starts = gait.segment_starts(settings) * t[-1]
     stance = CubicHermiteSpline(t, phi[0], phid[0])  # our stance angle is the peer's shank pitch
     nodes = np.stack([stance(starts), np.interp(starts, t, phid[0])], axis=-1)

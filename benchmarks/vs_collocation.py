@@ -3,10 +3,10 @@
 For each case (M1-M4 at the paper's power limits, and M3, M4 at 20 W; M1 and M2's own limits are
 20 W) this solves the planar-step problem twice:
 
-- **ours**: ``biped_jax`` as the study runs it (``gait_solver.solve_multistart`` with SLSQP: every start
+- **ours**: ``biped_jax`` as the study runs it (``multistart.solve_multistart`` with SLSQP: every start
   family of ``study.STUDY_FAMILIES`` in the coarse space, the cheapest per model carried into the
   study's space, 20 W warm-started from it; ``--solver al`` runs the augmented-Lagrangian continuation
-  of ``study.solve_paper_models`` instead), from its own starts only;
+  of ``continuation.solve_paper_models`` instead), from its own starts only;
 - **peer**: ``collocation_peer.solve`` (CasADi + IPOPT, Hermite-Simpson, written from the spec), on
   ``--segments`` segments and again on twice as many (its own mesh check).
 
@@ -62,8 +62,9 @@ def main():
     import numpy as np
 
     from biped_jax.gait import problem as gait
-    from biped_jax.gait import solver as gait_solver
+    from biped_jax.gait import multistart
     from biped_jax.gait.solver import GaitSolver
+    from biped_jax.studies import continuation
     from biped_jax.studies import paper as study
 
     cases = [(m, m.power_limit) for m in study.PAPER_MODELS] + [(m, 20.0) for m in study.PAPER_MODELS]
@@ -84,13 +85,13 @@ def main():
         solvers = study.study_solvers(settings, "sqp")
         solver, coarse = solvers.fine, solvers.coarse
     else:
-        solver = GaitSolver(settings, study.CONTINUATION_OPTIONS)
+        solver = GaitSolver(settings, continuation.CONTINUATION_OPTIONS)
 
     def paper_models():
         if args.solver == "al":
-            return study.solve_paper_models(solver, rows=rows, progress=print)[0]
+            return continuation.solve_paper_models(solver, rows=rows, progress=print)[0]
         models = [gait.gait_model(m.mass_class, m.speed, m.power_limit) for m in rows]
-        return gait_solver.solve_multistart(solver, [m.name for m in rows], models, families=study.STUDY_FAMILIES,
+        return multistart.solve_multistart(solver, [m.name for m in rows], models, families=study.STUDY_FAMILIES,
                                             coarse=coarse)
 
     def ours_once():

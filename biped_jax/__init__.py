@@ -15,11 +15,13 @@ import importlib
 
 _MODULES = {
     "robots.design": ("Design", "apply_design", "check_design", "design_layout"),
-    "dynamics.hybrid_step": ("PlanarBiped", "StanceTrajectory", "Touchdown", "load_planar_biped",
-                             "stance_rollout", "touchdown", "with_design"),
+    "dynamics.hybrid_step": ("PlanarBiped", "StanceTrajectory", "load_planar_biped", "stance_rollout",
+                             "with_design"),
+    "dynamics.impact": ("Touchdown", "touchdown"),
     "robots.registry": ("ROBOTS", "load_mj_model", "load_mjx_model", "model_path"),
     "gait.problem": ("GaitSettings", "gait_model", "START_FAMILIES"),
-    "gait.solver": ("GaitSolver", "GaitSolution", "solve_multistart"),
+    "gait.solver": ("GaitSolver", "GaitSolution"),
+    "gait.multistart": ("solve_multistart",),
 }
 _EXPORTS = {name: module for module, names in _MODULES.items() for name in names}
 

@@ -5,6 +5,8 @@ import os
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
 jax.config.update("jax_enable_x64", True)
@@ -32,11 +34,43 @@ def biped18():
     return hybrid_step.load_planar_biped("18kg")
 
 
+#: The single-support rollouts' horizon in every test and the README's quickstart: one compiled program.
+ROLLOUT_STEPS = 50
+
+
 @pytest.fixture(scope="session")
 def rollout():
-    """One jitted single-support rollout shared by every test (compiled once per horizon)."""
+    """One jitted single-support rollout shared by every test (controls of :data:`ROLLOUT_STEPS` steps;
+    the README's quickstart compiles the same program)."""
     from biped_jax.dynamics import hybrid_step
     return jax.jit(hybrid_step.stance_rollout)
+
+
+#: The differentiated rollout: 20 Euler steps of 1.8 ms from a mid-step state (no damping, so the
+#: closed-form chain's explicit Euler equals MJX's).
+GRADIENT_STEPS, GRADIENT_DT = 20, 1.8e-3
+GRADIENT_START = (np.array([-0.35, 0.0, -0.35, 0.35, 0.0]), np.array([2.5, 0.0, 2.5, -4.0, 0.0]))
+
+
+def rollout_cost(q, qd, qdd, u, force):
+    """A scalar of everything a rollout returns (final state and acceleration, torques, ground force)."""
+    return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + 1e-2 * jnp.sum(qdd[-1]) + 1e-2 * jnp.sum(u ** 2)
+            + 1e-4 * jnp.sum(force[:, 1] ** 2))
+
+
+@pytest.fixture(scope="session")
+def mjx_rollout_gradient(biped12):
+    """``(q0, qd0, controls) -> ((cost, trajectory), gradient)`` of :func:`rollout_cost` through MJX's
+    rollout on the 12 kg biped at :data:`GRADIENT_DT`: one compiled program that the finite-difference
+    check (test_hybrid_step) and the closed-form chain's gradient (test_planar_chain) both use."""
+    from biped_jax.dynamics import hybrid_step
+    pinned = hybrid_step.with_timestep(biped12.pinned, GRADIENT_DT)
+
+    def cost(params):
+        trajectory = hybrid_step.stance_rollout(pinned, *params)
+        return rollout_cost(trajectory.q, trajectory.qd, trajectory.qdd, trajectory.u,
+                            trajectory.ground_force), trajectory
+    return jax.jit(jax.value_and_grad(cost, has_aux=True))
 
 
 @pytest.fixture(scope="session")
@@ -54,3 +88,26 @@ def paper_solutions(short_solver):
     --substeps 4` compiles for its refined-space stage)."""
     from biped_jax.studies import paper as study
     return short_solver.solve([r.name for r in study.PAPER_MODELS], study.paper_gait_models(study.PAPER_MODELS))
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """With BIPED_JAX_TEST_COMPILES=DIR, each test's compilations (program names, compile or cache-load
+    seconds; a fixture's in the test that first sets it up) are appended to DIR/<worker>.jsonl: where
+    the suite's time goes on an empty cache. Off by default."""
+    folder = os.environ.get("BIPED_JAX_TEST_COMPILES")
+    if not folder:
+        yield
+        return
+    import json
+
+    from biped_jax.report.compile_profile import profile_compiles
+    with profile_compiles() as profile:
+        yield
+    summary = profile.summary()
+    row = {"test": item.nodeid, "compilations": summary["compilations"],
+           "seconds_compiled": summary["seconds_compiled"], "seconds": summary["seconds"],
+           "programs": {name: round(p["seconds"], 2) for name, p in summary["programs"].items() if p["seconds"] > 0.5}}
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    with open(Path(folder) / f"{os.environ.get('PYTEST_XDIST_WORKER', 'main')}.jsonl", "a") as file:
+        file.write(json.dumps(row) + "\n")

@@ -9,6 +9,8 @@ import pytest
 
 from biped_jax.optim import augmented_lagrangian as al
 
+from biped_jax.optim import nlp
+
 OPTIONS = al.SolverOptions(tolerance=1e-8, stationarity=1e-6)
 # The solver stops at scaled violation 1e-8 and stationarity 1e-6: solutions agree to about 1e-6.
 SOLUTION_TOLERANCE = 1e-5
@@ -20,7 +22,7 @@ def test_equality_constrained_qp_batch_matches_the_kkt_solution():
     c = jnp.array([1.0, -2.0, 0.5])
     a = jnp.array([[1.0, 1.0, 1.0], [1.0, -1.0, 2.0]])
     rhs = jnp.array([[1.0, 0.0], [2.0, 1.0], [-1.0, 3.0]])
-    problem = al.ConstrainedProblem.from_functions(objective=lambda x, b: 0.5 * x @ q @ x + c @ x,
+    problem = nlp.ConstrainedProblem.from_functions(objective=lambda x, b: 0.5 * x @ q @ x + c @ x,
                                     equalities=lambda x, b: a @ x - b,
                                     inequalities=lambda x, b: jnp.zeros(0))
     result = al.solve(problem, jnp.zeros((3, 3)), rhs, OPTIONS)
@@ -28,7 +30,7 @@ def test_equality_constrained_qp_batch_matches_the_kkt_solution():
         kkt = np.block([[q, a.T], [a, np.zeros((2, 2))]])
         expected = np.linalg.solve(kkt, np.concatenate([-c, rhs[k]]))[:3]
         np.testing.assert_allclose(result.x[k], expected, atol=SOLUTION_TOLERANCE)
-        assert result.status[k] == al.CONVERGED
+        assert result.status[k] == nlp.CONVERGED
 
 
 @pytest.mark.parametrize("preconditioned", [False, True])
@@ -37,14 +39,14 @@ def test_inequality_constrained_qp_with_active_and_inactive_constraints(precondi
     without the Gauss-Newton preconditioner (the objective is a sum of squares)."""
     def residuals(x, p):
         return x - p, jnp.zeros(0), jnp.array([x[0] + x[1] - 1.0, -x[0]])
-    problem = (al.ConstrainedProblem.from_residuals(residuals) if preconditioned else
-               al.ConstrainedProblem(lambda x, p: (lambda r, h, g: (r @ r, h, g))(*residuals(x, p))))
+    problem = (nlp.ConstrainedProblem.from_residuals(residuals) if preconditioned else
+               nlp.ConstrainedProblem(lambda x, p: (lambda r, h, g: (r @ r, h, g))(*residuals(x, p))))
     targets = jnp.array([[1.0, 1.0], [0.2, 0.3], [-1.0, 3.0]])
     result = al.solve(problem, jnp.zeros((3, 2)), targets, OPTIONS)
     # (1,1) -> (0.5, 0.5); (0.2, 0.3) is feasible; (-1, 3) -> x = 0 and y = 1 (corner)
     np.testing.assert_allclose(result.x, [[0.5, 0.5], [0.2, 0.3], [0.0, 1.0]], atol=SOLUTION_TOLERANCE)
     np.testing.assert_allclose(result.cost, [0.5, 0.0, 5.0], atol=SOLUTION_TOLERANCE)
-    assert result.status == [al.CONVERGED] * 3
+    assert result.status == [nlp.CONVERGED] * 3
 
 
 @pytest.mark.parametrize("preconditioned", [False, True])
@@ -61,9 +63,9 @@ def test_double_integrator_minimum_effort_transfer(preconditioned):
     a = np.stack([end_position, end_velocity])
     def residuals(u, p):
         return jnp.sqrt(dt) * u, jnp.asarray(a) @ u - jnp.array([1.0, 0.0]), jnp.zeros(0)
-    problem = al.ConstrainedProblem.from_residuals(residuals)
+    problem = nlp.ConstrainedProblem.from_residuals(residuals)
     if not preconditioned:
-        problem = al.ConstrainedProblem(problem.evaluate)
+        problem = nlp.ConstrainedProblem(problem.evaluate)
     result = al.solve(problem, jnp.zeros((1, n)), jnp.zeros((1,)), OPTIONS)
     least_norm = a.T @ np.linalg.solve(a @ a.T, [1.0, 0.0])
     np.testing.assert_allclose(result.x[0], least_norm, atol=1e-4)
@@ -73,45 +75,45 @@ def test_double_integrator_minimum_effort_transfer(preconditioned):
 
 
 def test_infeasible_problem_is_reported_with_its_violation():
-    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2),
+    problem = nlp.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2),
                                     equalities=lambda x, p: jnp.zeros(0),
                                     inequalities=lambda x, p: jnp.array([x[0] - (-1.0), 1.0 - x[0]]))
     result = al.solve(problem, jnp.zeros((1, 1)), jnp.zeros((1,)), OPTIONS)
-    assert result.status == [al.INFEASIBLE]
+    assert result.status == [nlp.INFEASIBLE]
     assert result.violation[0] == pytest.approx(1.0, abs=1e-3)  # x = 0 splits the two demands
 
 
 def test_a_tiny_violation_left_at_the_penalty_cap_is_stalled_not_infeasible():
     # x >= 1 and x <= 1 - 2e-5 cannot both hold; the best point misses each by 1e-5 (scaled), far below
     # what would justify calling a real problem infeasible.
-    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2),
+    problem = nlp.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2),
                                     equalities=lambda x, p: jnp.zeros(0),
                                     inequalities=lambda x, p: jnp.array([1.0 - x[0], x[0] - (1.0 - 2e-5)]))
     result = al.solve(problem, jnp.zeros((1, 1)), jnp.zeros((1,)), OPTIONS)
-    assert result.status == [al.STALLED]
+    assert result.status == [nlp.STALLED]
     assert result.violation[0] == pytest.approx(1e-5, rel=0.05)
 
 
 def test_acceptable_termination_needs_feasibility_and_a_settled_cost():
     # stationarity -1 can never be met: only the acceptable rule can end the solve as converged
-    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum((x - 2.0) ** 2),
+    problem = nlp.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum((x - 2.0) ** 2),
                                     equalities=lambda x, p: jnp.array([x[0] - 1.0]),
                                     inequalities=lambda x, p: jnp.zeros(0))
     strict = dataclasses.replace(OPTIONS, stationarity=-1.0, max_outer=12)
     result = al.solve(problem, jnp.zeros((1, 2)), jnp.zeros((1,)), strict)
-    assert result.status == [al.ITERATION_LIMIT] and result.outer_iterations[0] == 12
+    assert result.status == [nlp.ITERATION_LIMIT] and result.outer_iterations[0] == 12
     acceptable = dataclasses.replace(strict, acceptable_change=1e-7, acceptable_iterations=3)
     result = al.solve(problem, jnp.zeros((1, 2)), jnp.zeros((1,)), acceptable)
-    assert result.status == [al.CONVERGED] and result.outer_iterations[0] < 12
+    assert result.status == [nlp.CONVERGED] and result.outer_iterations[0] < 12
     np.testing.assert_allclose(result.x[0], [1.0, 2.0], atol=1e-6)
 
 
 def test_nan_is_caught_and_reported_as_diverged():
-    problem = al.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2) + jnp.log(x[0] - 5.0),
+    problem = nlp.ConstrainedProblem.from_functions(objective=lambda x, p: jnp.sum(x**2) + jnp.log(x[0] - 5.0),
                                     equalities=lambda x, p: jnp.zeros(0),
                                     inequalities=lambda x, p: jnp.zeros(0))
     result = al.solve(problem, jnp.zeros((1, 2)), jnp.zeros((1,)), OPTIONS)
-    assert result.status == [al.DIVERGED]
+    assert result.status == [nlp.DIVERGED]
 
 
 def test_central_differences_give_the_exact_gradient_of_a_quadratic_and_solve_like_autodiff():
@@ -123,7 +125,7 @@ def test_central_differences_give_the_exact_gradient_of_a_quadratic_and_solve_li
 
     def evaluate(x, p):
         return 0.5 * x @ q @ x - p @ x, jnp.array([x[0] - 2 * x[1] - 0.5]), jnp.array([x @ x - 1.0])
-    smoothed = al.central_differences(evaluate, step=0.3)
+    smoothed = nlp.central_differences(evaluate, step=0.3)
     x = jnp.array([[0.4, -0.7], [1.5, 0.2]])
     p = jnp.array([[1.0, 2.0], [-1.0, 0.5]])
     weights = jnp.array([1.0, -2.0, 0.7])
@@ -137,8 +139,8 @@ def test_central_differences_give_the_exact_gradient_of_a_quadratic_and_solve_li
     np.testing.assert_allclose(smoothed(x[0], p[0])[0], evaluate(x[0], p[0])[0], rtol=0)
     assert float(jnp.abs(jax.grad(lambda p_: smoothed(x[0], p_)[0])(p[0])).max()) == 0.0
 
-    problem = al.ConstrainedProblem(evaluate)
+    problem = nlp.ConstrainedProblem(evaluate)
     reference = al.solve(problem, jnp.zeros((2, 2)), p, OPTIONS)
     result = al.solve(problem.with_central_differences(0.3), jnp.zeros((2, 2)), p, OPTIONS)
     np.testing.assert_allclose(result.x, reference.x, atol=SOLUTION_TOLERANCE)
-    assert result.status == reference.status == [al.CONVERGED] * 2
+    assert result.status == reference.status == [nlp.CONVERGED] * 2

@@ -14,7 +14,7 @@ from biped_jax.drives.model import GCM2
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.gait import problem as gait
 from biped_jax.gait.solver import stack_tree
-from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
 
 SPEED, POWER_LIMIT = 0.555, 20.0  # M2
 LOG_STEP = 0.03  # central difference in log N
@@ -108,7 +108,7 @@ def ratio_batch(design_solver, paper_solutions):
 def test_a_batch_of_designs_converges_and_identical_designs_agree(design_solver, ratio_batch, paper_solutions):
     designs, _, solutions = ratio_batch
     for design, solution in zip(designs, solutions):
-        assert solution.status == al.CONVERGED, (solution.status, solution.violations)
+        assert solution.status == nlp.CONVERGED, (solution.status, solution.violations)
         record = codesign.design_record(design, solution)
         assert record["max_voltage_needed_V"] <= 38.0 + 1e-3
         assert record["peak_joint_power_W"] <= POWER_LIMIT + 1e-4

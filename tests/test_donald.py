@@ -113,7 +113,6 @@ def test_default_gait_is_feasible_for_the_speed_optimisation():
     """The optimiser starts from a feasible point: the default gait keeps the stability margin, foot
     clearance and pelvis height with the single-iteration (differentiable) contact solver, and the
     objective is the speed over steps 2 and 3 recomputed here from the centre of mass."""
-    import jax
 
     from biped_jax.donald import speed as donald_speed
     drive = donald.donald_drive()
@@ -121,10 +120,14 @@ def test_default_gait_is_feasible_for_the_speed_optimisation():
     assert mj_model.opt.iterations == 1
     walk = donald.walker(mj_model, donald_speed.STEPS, donald_speed.DURATION)
     z = jnp.ones(len(donald_speed.PARAMETERS))
-    objective, equalities, inequalities = jax.jit(lambda z_: donald_speed.speed_and_constraints(
-        z_, walk, model, donald.DEFAULT_GAINS, drive))(z)
+    # op by op around the compiled walk: the walk below is then the same program, compiled once
+    objective, equalities, inequalities = donald_speed.speed_and_constraints(
+        z, walk, model, donald.DEFAULT_GAINS, drive)
     assert equalities.size == 0 and float(jnp.max(inequalities)) <= 0  # at the duration bounds
-    run = walk(model, donald.DEFAULT_GAIT, donald.DEFAULT_GAINS, drive)
+    gait = donald_speed.gait_from_vector(z)  # the default gait
+    for field in dataclasses.fields(gait):
+        assert float(getattr(gait, field.name)) == pytest.approx(float(getattr(donald.DEFAULT_GAIT, field.name)))
+    run = walk(model, gait, donald.DEFAULT_GAINS, drive)
     _, times = donald.keyframes(donald.DEFAULT_GAIT, donald_speed.STEPS)
     t, com_x = np.asarray(run.t), np.asarray(run.com)[:, 0]
     start, end = float(times[5]), float(times[13])  # ends of steps 1 and 3

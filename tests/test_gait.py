@@ -14,9 +14,13 @@ from conftest import short_settings
 from biped_jax.drives.model import RPM
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.gait import problem as gait
+from biped_jax.robots import planar_biped
 from biped_jax.gait import report as gait_report
+from biped_jax.gait import multistart
+from biped_jax.gait import verdict
 from biped_jax.gait import solver as gait_solver
 from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
 
 # Short horizon for the tests: the same code as the study, fewer knot spans and steps.
 SETTINGS = short_settings()
@@ -104,7 +108,7 @@ def test_prescribed_joints_follow_the_spline_and_the_torques_give_its_accelerati
     step_time = float(model.step_length / model.speed)
     s = gait.grid(SETTINGS)
     q, dq, ddq = (np.asarray(r) for r in gait.reference(x, SETTINGS, s))
-    a = gait.ACTUATED_INDEX
+    a = planar_biped.ACTUATED_INDEX
     np.testing.assert_allclose(trajectory.q[:, a], q, atol=1e-12)
     np.testing.assert_allclose(trajectory.qd[:, a], dq / step_time, atol=1e-10)
     np.testing.assert_allclose(trajectory.qdd[:, a], ddq / step_time**2, atol=1e-8)
@@ -123,7 +127,7 @@ def test_start_state_and_first_sample_are_consistent(solver, heuristic):
     step_time = float(model.step_length / model.speed)
     q0, dq0, _ = (np.asarray(r)[0] for r in gait.reference(x, SETTINGS, np.zeros(1)))
     np.testing.assert_allclose(trajectory.q[0], np.r_[x[0], q0[[1, 0, 2, 3]]], atol=1e-12)
-    np.testing.assert_allclose(trajectory.qd[0, gait.ACTUATED_INDEX], dq0 / step_time, atol=1e-12)
+    np.testing.assert_allclose(trajectory.qd[0, planar_biped.ACTUATED_INDEX], dq0 / step_time, atol=1e-12)
     assert trajectory.qd[0, 0] == pytest.approx(float(x[1]))
     pinned = hs.with_design(solver.biped, model.design).pinned
     force = jax.jit(hs.ground_reaction)(pinned, trajectory.q[0], trajectory.qd[0], trajectory.qdd[0])
@@ -164,26 +168,26 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     fine = jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate_refined(
         jnp.asarray(np.tile(m2_solution.x, (4, 1))), batch))
     assert check["cost"] == pytest.approx(float(gait.cost(fine)), rel=1e-12)
-    moved = gait_solver.refinement_record(1.01 * check["cost"], fine, model, solver.refined_settings)
+    moved = verdict.refinement_record(1.01 * check["cost"], fine, model, solver.refined_settings)
     assert not moved["passed"] and moved["failed"][0] == "cost"
     # a gait that fails the check is not converged (the study's solvers enforce it)
     feasible = {k: 0.0 for k in gait.CONSTRAINT_GROUPS}
-    assert gait_solver.classify(al.CONVERGED, True, feasible, moved) == gait_solver.GRID_DEPENDENT
-    assert gait_solver.classify(al.CONVERGED, True, feasible, moved, require_refinement=False) == al.CONVERGED
-    assert gait_solver.classify(al.CONVERGED, True, feasible, {"passed": True}) == al.CONVERGED
-    assert gait_solver.classify(al.CONVERGED, False, feasible, {"passed": True}) == al.DIVERGED
-    assert gait_solver.classify(al.CONVERGED, True, feasible | {"power_limit": 1e-3},
-                                {"passed": True}) == al.ITERATION_LIMIT
+    assert verdict.classify(nlp.CONVERGED, True, feasible, moved) == verdict.GRID_DEPENDENT
+    assert verdict.classify(nlp.CONVERGED, True, feasible, moved, require_refinement=False) == nlp.CONVERGED
+    assert verdict.classify(nlp.CONVERGED, True, feasible, {"passed": True}) == nlp.CONVERGED
+    assert verdict.classify(nlp.CONVERGED, False, feasible, {"passed": True}) == nlp.DIVERGED
+    assert verdict.classify(nlp.CONVERGED, True, feasible | {"power_limit": 1e-3},
+                                {"passed": True}) == nlp.ITERATION_LIMIT
     tight = gait.gait_model("12kg", 0.555, 0.5 * float(np.max(np.abs(fine.joint_power))))
-    broken = gait_solver.refinement_record(check["cost"], fine, tight, solver.refined_settings)
+    broken = verdict.refinement_record(check["cost"], fine, tight, solver.refined_settings)
     assert "power_limit" in broken["failed"] and broken["power_margin_fraction"] > 0.01
 
 
 @pytest.mark.slow
 def test_short_horizon_gaits_of_all_four_models_converge_in_one_batch(paper_solutions):
     for solution in paper_solutions:
-        assert solution.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT), (solution.name, solution.status)
-        assert max(solution.violations.values()) <= gait_solver.VIOLATION_TOLERANCE
+        assert solution.status in (nlp.CONVERGED, verdict.GRID_DEPENDENT), (solution.name, solution.status)
+        assert max(solution.violations.values()) <= verdict.VIOLATION_TOLERANCE
     # heavier and faster costs more effort (the paper's Tables 4-5 ordering)
     cost = {s.name: s.cost for s in paper_solutions}
     assert cost["M1"] < cost["M2"] < cost["M4"] and cost["M3"] < cost["M4"]
@@ -193,12 +197,12 @@ def test_short_horizon_gaits_of_all_four_models_converge_in_one_batch(paper_solu
 def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solution):
     solution = m2_solution
     assert set(solution.violations) == set(gait.CONSTRAINT_GROUPS)
-    assert max(solution.violations.values()) <= gait_solver.VIOLATION_TOLERANCE
+    assert max(solution.violations.values()) <= verdict.VIOLATION_TOLERANCE
     trajectory = solution.trajectory
     # Independently of the solver's bookkeeping: the touchdown lands L ahead, the power limit holds at
     # every sample (start and end included), and the next step starts where this one started.
     np.testing.assert_allclose(trajectory.swing_foot[-1], [0.2, 0.0], atol=1e-4)
-    power = np.abs(np.asarray(trajectory.qd)[:, gait.ACTUATED_INDEX] * np.asarray(trajectory.u))
+    power = np.abs(np.asarray(trajectory.qd)[:, planar_biped.ACTUATED_INDEX] * np.asarray(trajectory.u))
     assert power.max() <= 20.0 + 1e-4
     np.testing.assert_allclose(trajectory.touchdown.q, trajectory.q[0], atol=1e-4)
     np.testing.assert_allclose(trajectory.touchdown.qd, trajectory.qd[0], atol=1e-4)
@@ -216,13 +220,13 @@ def test_multistart_reports_the_spread_and_keeps_the_best(solver):
     model = gait.gait_model("12kg", 0.555, 20.0)
     families = gait.START_FAMILIES[:4]
     ends = []
-    solution, = gait_solver.solve_multistart(solver, ["M2"], [model], families=families,
+    solution, = multistart.solve_multistart(solver, ["M2"], [model], families=families,
                                              finished=lambda stage, count: ends.append((stage, count)))
     assert ends == [("starts", 4)]  # one stage without a coarse space; its end is reported once
     assert [row["family"] for row in solution.starts] == [f.name for f in families]
     assert all(np.isfinite([row["cost"] for row in solution.starts]))
-    assert solution.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT), solution.status
-    feasible = [row["cost"] for row in solution.starts if row["status"] in (al.CONVERGED, gait_solver.GRID_DEPENDENT)]
+    assert solution.status in (nlp.CONVERGED, verdict.GRID_DEPENDENT), solution.status
+    feasible = [row["cost"] for row in solution.starts if row["status"] in (nlp.CONVERGED, verdict.GRID_DEPENDENT)]
     assert feasible, solution.starts
     assert solution.cost <= min(feasible) * (1 + 1e-4)
 
@@ -383,9 +387,10 @@ def test_start_family_can_land_on_a_flexed_stance_knee():
 
 
 def test_continuation_keeps_the_cheapest_feasible_family_per_model_and_solves_it_at_the_limit():
-    """study.solve_paper_models' bookkeeping, with a stand-in solver (no compilation): per model the
+    """continuation.solve_paper_models' bookkeeping, with a stand-in solver (no compilation): per model the
     cheapest converged family without a power limit is carried to the model's own limit, every family's
     outcome is listed, and a model with no converged family carries its least violated start."""
+    from biped_jax.studies import continuation
     from biped_jax.studies import paper as study
 
     class StandIn:
@@ -402,11 +407,11 @@ def test_continuation_keeps_the_cheapest_feasible_family_per_model_and_solves_it
             self.calls.append((np.asarray(x0), [float(m.power_limit) for m in models]))
             family = len(self.calls) - 1
             # model 0: family 1 cheapest of the converged; model 1: nothing converges, family 2 least violated
-            table = {0: [(al.CONVERGED, 3.0, 0.0), (al.CONVERGED, 2.0, 0.0), (al.ITERATION_LIMIT, 1.0, 1e-2)],
-                     1: [(al.ITERATION_LIMIT, 3.0, 5e-2), (al.STALLED, 2.0, 3e-2), (al.ITERATION_LIMIT, 1.0, 1e-3)]}
+            table = {0: [(nlp.CONVERGED, 3.0, 0.0), (nlp.CONVERGED, 2.0, 0.0), (nlp.ITERATION_LIMIT, 1.0, 1e-2)],
+                     1: [(nlp.ITERATION_LIMIT, 3.0, 5e-2), (nlp.STALLED, 2.0, 3e-2), (nlp.ITERATION_LIMIT, 1.0, 1e-3)]}
             out = []
             for b, name in enumerate(names):
-                status, cost, violation = table[b][family] if family < 3 else (al.CONVERGED, 9.0, 0.0)
+                status, cost, violation = table[b][family] if family < 3 else (nlp.CONVERGED, 9.0, 0.0)
                 out.append(types.SimpleNamespace(name=name, status=status, cost=cost, max_violation=violation,
                                                  x=np.full(x0.shape[1], 10.0 * family + b), starts=[]))
             return out
@@ -414,8 +419,8 @@ def test_continuation_keeps_the_cheapest_feasible_family_per_model_and_solves_it
     families = gait.IMPACT_FAMILIES
     rows = study.PAPER_MODELS[1:3]  # M2 (20 W), M3 (25 W)
     solver = StandIn()
-    solutions, by_family = study.solve_paper_models(solver, families=families, rows=rows)
-    assert [limits for _, limits in solver.calls] == [[study.FREE_POWER_LIMIT] * 2] * 3 + [[20.0, 25.0]]
+    solutions, by_family = continuation.solve_paper_models(solver, families=families, rows=rows)
+    assert [limits for _, limits in solver.calls] == [[continuation.FREE_POWER_LIMIT] * 2] * 3 + [[20.0, 25.0]]
     carried = solver.calls[-1][0]
     np.testing.assert_array_equal(carried[:, 0], [10.0 * 1 + 0, 10.0 * 2 + 1])
     assert [len(s.starts) for s in solutions] == [3, 3] and len(by_family) == 3

@@ -8,10 +8,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import GRADIENT_DT, GRADIENT_START, GRADIENT_STEPS, rollout_cost
 
+from biped_jax.dynamics import impact
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.dynamics import planar_chain
 from biped_jax.gait import problem as gait
+from biped_jax.robots import planar_biped
 
 mjx = hs.mjx
 SITES = ("foot1", "knee1", "hip", "knee2", "foot2")
@@ -36,7 +39,7 @@ def designed(designed_biped):
 
 def test_structure_of_the_pinned_biped(biped12):
     chain = planar_chain.PlanarChain.from_model(biped12.pinned)
-    np.testing.assert_array_equal(chain.actuated_dof, gait.ACTUATED_INDEX)  # (H1, K1, H2, K2)
+    np.testing.assert_array_equal(chain.actuated_dof, planar_biped.ACTUATED_INDEX)  # (H1, K1, H2, K2)
     np.testing.assert_array_equal(chain.parent, [-1, 0, 1, 2, 3])
     assert chain.site_body == {"foot1": 0, "knee1": 1, "hip": 2, "knee2": 4, "foot2": 4}
 
@@ -71,8 +74,8 @@ def test_touchdown_and_swing_foot_equal_mjx(designed_biped, seed):
     rng = np.random.default_rng(seed)
     q = jnp.array([0.2, 0.3, -0.4, 0.5, 0.1]) + 0.1 * jnp.asarray(rng.normal(size=5))
     qd = jnp.asarray(2 * rng.normal(size=5))
-    closed_form = hs.chain_touchdown(chain, designed_biped.pinned, q, qd)
-    reference = hs.touchdown(designed_biped, q, qd)
+    closed_form = impact.chain_touchdown(chain, designed_biped.pinned, q, qd)
+    reference = impact.touchdown(designed_biped, q, qd)
     assert np.linalg.norm(reference.impulse) > 1.0  # a real impact
     for field in dataclasses.fields(reference):
         np.testing.assert_allclose(getattr(closed_form, field.name), getattr(reference, field.name),
@@ -83,34 +86,24 @@ def test_touchdown_and_swing_foot_equal_mjx(designed_biped, seed):
 
 
 @pytest.mark.slow
-def test_rollout_and_its_gradient_equal_mjx(biped12, rollout):
+def test_rollout_and_its_gradient_equal_mjx(biped12, mjx_rollout_gradient):
     """20 Euler steps of 1.8 ms (no damping: MJX's implicit damping would differ by O(dt^2)), and the
-    gradient of a cost of the final state and the ground force with respect to the torques."""
+    gradient of a cost of the whole rollout with respect to the start state and the torques (MJX's
+    program is the one test_hybrid_step checks against finite differences)."""
     chain = planar_chain.PlanarChain.from_model(biped12.pinned)
-    pinned = hs.with_timestep(biped12.pinned, 1.8e-3)
-    q0 = jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0])
-    qd0 = jnp.array([2.5, 0.0, 2.5, -4.0, 0.0])
-    controls = jnp.asarray(np.random.default_rng(3).normal(size=(20, 4)))
+    pinned = hs.with_timestep(biped12.pinned, GRADIENT_DT)
+    params = (*map(jnp.asarray, GRADIENT_START), jnp.asarray(np.random.default_rng(3).normal(size=(GRADIENT_STEPS, 4))))
 
-    def cost(u, simulate):
-        q, qd, force = simulate(u)
-        return jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + 1e-4 * jnp.sum(force[:, 1] ** 2)
+    def chain_cost(params):
+        q, qd, qdd, force = planar_chain.stance_rollout(chain, pinned, *params)
+        return rollout_cost(q, qd, qdd, params[2], force), (q, force)
 
-    def with_chain(u):
-        q, qd, _, force = planar_chain.stance_rollout(chain, pinned, q0, qd0, u)
-        return q, qd, force
-
-    def with_mjx(u):
-        trajectory = rollout(pinned, q0, qd0, u)
-        return trajectory.q, trajectory.qd, trajectory.ground_force
-
-    # one compiled program per dynamics for the states, the force and the gradient
-    results = {simulate: jax.jit(lambda u, simulate=simulate: (simulate(u), jax.grad(cost)(u, simulate)))(controls)
-               for simulate in (with_chain, with_mjx)}
-    (chain_states, gradient_chain), (mjx_states, gradient_mjx) = results.values()
-    np.testing.assert_allclose(chain_states[0], mjx_states[0], atol=1e-12)
-    np.testing.assert_allclose(chain_states[2], mjx_states[2], atol=1e-9)
-    np.testing.assert_allclose(gradient_chain, gradient_mjx, rtol=1e-9, atol=1e-10)
+    (_, (q, force)), gradient = jax.jit(jax.value_and_grad(chain_cost, has_aux=True))(params)
+    (_, reference), reference_gradient = mjx_rollout_gradient(params)
+    np.testing.assert_allclose(q, reference.q, atol=1e-12)
+    np.testing.assert_allclose(force, reference.ground_force, atol=1e-9)
+    for mine, theirs in zip(gradient, reference_gradient):  # d/dq0, d/dqd0, d/du
+        np.testing.assert_allclose(mine, theirs, rtol=1e-9, atol=1e-10)
 
 
 @pytest.mark.slow

@@ -15,11 +15,11 @@ def _python_blocks():
 def test_quickstart_runs_and_gives_physical_numbers():
     namespace = {}
     exec(compile(_python_blocks()[0], "README quickstart", "exec"), namespace)
-    trajectory, impact = namespace["trajectory"], namespace["impact"]
+    trajectory, landing = namespace["trajectory"], namespace["landing"]
     assert trajectory.q.shape == (51, 5)
     # At the start the torques are zero and the robot is moving: the foot force holds it up.
     assert 0 < float(trajectory.ground_force[0, 1]) < 3 * 12 * 9.81
-    assert np.all(np.isfinite(np.asarray(impact.impulse)))
+    assert np.all(np.isfinite(np.asarray(landing.impulse)))
     heavy = namespace["heavy"]
     assert abs(float(heavy.pinned.body_mass.sum()) - 17.998) < 1e-9
 

@@ -9,13 +9,15 @@ import pytest
 from biped_jax.codesign import problem as codesign
 from biped_jax.gait import problem as gait
 from biped_jax.gait.solver import GaitSolver
-from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
+from biped_jax.optim import coloured
+from biped_jax.optim import limit_minimisation
 from biped_jax.optim import sqp
 
 
 def _projection_problem():
     """min |x - p|^2 s.t. x0 + x1 = 1, x0 >= 0.8 (as 0.8 - x0 <= 0): the nearest point of a ray."""
-    return al.ConstrainedProblem.from_functions(
+    return nlp.ConstrainedProblem.from_functions(
         lambda x, p: jnp.sum((x - p) ** 2), lambda x, p: jnp.array([x[0] + x[1] - 1.0]),
         lambda x, p: jnp.array([0.8 - x[0]]))
 
@@ -26,7 +28,7 @@ def test_known_optima_and_multipliers_of_a_batch():
     # the projection of (1, 2) onto x0 + x1 = 1 is (0, 1), cut by x0 >= 0.8: (0.8, 0.2), bound active;
     # (3, 0) projects to (2, -1) with the bound inactive
     np.testing.assert_allclose(result.x, [[0.8, 0.2], [2.0, -1.0]], atol=1e-7)
-    assert result.status == [al.CONVERGED, al.CONVERGED]
+    assert result.status == [nlp.CONVERGED, nlp.CONVERGED]
     # KKT in our convention, grad f + lam_eq grad h + lam_in grad g = 0 with lam_in >= 0:
     # case 1: 2(x - p) = (-0.4, -3.6) = -lam_eq (1, 1) - lam_in (-1, 0) -> lam_eq = 3.6, lam_in = 3.2
     np.testing.assert_allclose(result.multipliers_eq[:, 0], [3.6, 2.0], atol=1e-6)
@@ -38,30 +40,30 @@ def test_known_optima_and_multipliers_of_a_batch():
 
 
 def test_an_infeasible_problem_is_named_infeasible():
-    problem = al.ConstrainedProblem.from_functions(
+    problem = nlp.ConstrainedProblem.from_functions(
         lambda x, p: jnp.sum(x**2), lambda x, p: jnp.array([x[0]]), lambda x, p: jnp.array([p - x[0]]))
     result = sqp.solve(problem, jnp.ones((1, 2)), jnp.array([1.0]))
-    assert result.status == [al.INFEASIBLE] and result.violation[0] >= 0.1
+    assert result.status == [nlp.INFEASIBLE] and result.violation[0] >= 0.1
 
 
 def test_a_solve_ended_infeasible_returns_its_cheapest_feasible_iterate():
     """min -2 x0 s.t. x0^2 <= 1 from 0: SLSQP's first step overshoots to x0 = 2 (infeasible). Stopped
     there, the result is the last feasible point (the start, an upper bound, `iteration limit`), not
     the infeasible iterate; given iterations it converges to x0 = 1."""
-    problem = al.ConstrainedProblem(lambda x, p: (-2.0 * x[0] + 0.0 * x[1] ** 2, jnp.zeros(0),
+    problem = nlp.ConstrainedProblem(lambda x, p: (-2.0 * x[0] + 0.0 * x[1] ** 2, jnp.zeros(0),
                                                   jnp.array([x[0] ** 2 - 1.0])))
     short = sqp.solve(problem, np.zeros((1, 2)), jnp.zeros(1), sqp.SQPOptions(max_iterations=3))
-    assert short.status == [al.ITERATION_LIMIT] and short.violation[0] == 0.0
+    assert short.status == [nlp.ITERATION_LIMIT] and short.violation[0] == 0.0
     np.testing.assert_allclose(short.x[0], [0.0, 0.0])
     assert short.history[-1]["violation"][0] > 0.1  # SLSQP itself ended infeasible
     full = sqp.solve(problem, np.zeros((1, 2)), jnp.zeros(1), sqp.SQPOptions(max_iterations=50))
-    assert full.status == [al.CONVERGED]
+    assert full.status == [nlp.CONVERGED]
     np.testing.assert_allclose(full.x[0, 0], 1.0, atol=1e-6)
 
 
 def _shared_load_problem():
     """min |x - (2, 2)|^2 s.t. x0 + x1 = 3, x_i <= L (params["limit"]): the limit enters linearly."""
-    return al.ConstrainedProblem.from_residuals(
+    return nlp.ConstrainedProblem.from_residuals(
         lambda x, p: (x - 2.0, jnp.array([x[0] + x[1] - 3.0]), x - p["limit"]))
 
 
@@ -69,12 +71,12 @@ def test_the_smallest_limit_on_the_problems_own_compiled_functions():
     """LimitMinimisation: min t s.t. x0 + x1 = 3, x_i <= t L0 has t = 1.5 / L0 (the load shared
     evenly); its derivatives equal the explicit epigraph problem's, and an iterate infeasible only on
     the limit is lifted to the smallest t that holds it."""
-    compiled = sqp.compile_problem(_shared_load_problem())
-    limit = sqp.LimitMinimisation(compiled, lambda p, t: {"limit": p["limit"] * t})
+    compiled = coloured.compile_problem(_shared_load_problem())
+    limit = limit_minimisation.LimitMinimisation(compiled, lambda p, t: {"limit": p["limit"] * t})
     params = {"limit": jnp.array([3.0, 6.0])}
     result = sqp.solve(_shared_load_problem(), np.array([[1.0, 2.0, 1.0], [1.0, 2.0, 1.0]]), params,
                        compiled=limit)
-    assert result.status == [al.CONVERGED, al.CONVERGED]
+    assert result.status == [nlp.CONVERGED, nlp.CONVERGED]
     np.testing.assert_allclose(result.x, [[1.5, 1.5, 0.5], [1.5, 1.5, 0.25]], atol=1e-7)
 
     epigraph = jax.jacfwd(lambda z: jnp.concatenate([z[:2] - 3.0 * z[2], jnp.array([z[0] + z[1] - 3.0])]))
@@ -102,24 +104,24 @@ def test_a_working_set_of_rows_ends_at_the_full_problems_optimum():
     x1 <= 2; that row joins and it goes on to (1, 2), the full problem's optimum with its multipliers
     (4, 2, 0: zero on the row never seen). The limit minimisation's rows on the limit are seen however
     far from active they start."""
-    problem = al.ConstrainedProblem.from_functions(
+    problem = nlp.ConstrainedProblem.from_functions(
         lambda x, p: jnp.sum((x - p) ** 2), lambda x, p: jnp.zeros(0),
         lambda x, p: jnp.array([x[0] - 1.0, x[1] - 2.0, x[0] + x[1] - 10.0]))
     options = sqp.SQPOptions(working_margin=1.5)
     assert list(sqp.working_rows(np.array([-1.0, -2.0, -10.0]), 1.5)) == [0]
     screened = sqp.solve(problem, np.zeros((1, 2)), jnp.array([[3.0, 3.0]]), options)
     full = sqp.solve(problem, np.zeros((1, 2)), jnp.array([[3.0, 3.0]]))
-    assert screened.status == full.status == [al.CONVERGED]
+    assert screened.status == full.status == [nlp.CONVERGED]
     np.testing.assert_allclose(screened.x, [[1.0, 2.0]], atol=1e-7)
     np.testing.assert_allclose(screened.multipliers_in, [[4.0, 2.0, 0.0]], atol=1e-6)
     np.testing.assert_allclose(full.multipliers_in, screened.multipliers_in, atol=1e-6)
 
-    compiled = sqp.compile_problem(_shared_load_problem())
-    limit = sqp.LimitMinimisation(compiled, lambda p, t: {"limit": p["limit"] * t})
+    compiled = coloured.compile_problem(_shared_load_problem())
+    limit = limit_minimisation.LimitMinimisation(compiled, lambda p, t: {"limit": p["limit"] * t})
     far = {"limit": jnp.array([6.0])}  # x_i - 6 t at (1, 2), t = 1: -5 and -4, outside the margin
     assert list(limit.always_seen(np.array([1.0, 2.0, 1.0]), {"limit": jnp.asarray(6.0)})) == [True, True]
     result = sqp.solve(_shared_load_problem(), np.array([[1.0, 2.0, 1.0]]), far, options, compiled=limit)
-    assert result.status == [al.CONVERGED]
+    assert result.status == [nlp.CONVERGED]
     np.testing.assert_allclose(result.x, [[1.5, 1.5, 0.25]], atol=1e-7)
 
 
@@ -129,8 +131,8 @@ def _banded_problem(with_residuals: bool):
     def residuals(x, p):
         return x[:-1] ** 2 - p * x[1:], jnp.array([x[0] + x[-1] - 1.0]), jnp.sin(x[::2])
     if with_residuals:
-        return al.ConstrainedProblem.from_residuals(residuals)
-    return al.ConstrainedProblem(lambda x, p: (jnp.sum(x[:3] ** 3), *residuals(x, p)[1:]))
+        return nlp.ConstrainedProblem.from_residuals(residuals)
+    return nlp.ConstrainedProblem(lambda x, p: (jnp.sum(x[:3] ** 3), *residuals(x, p)[1:]))
 
 
 @pytest.mark.parametrize("with_residuals", [True, False])
@@ -139,11 +141,11 @@ def test_coloured_differences_equal_the_exact_jacobian(with_residuals):
     once): 2 or 3 colours for 12 columns (padded to 8: 17 rollouts, not 25), every derivative equal to
     forward-mode autodiff's to the differences' accuracy, at a point far from the probe's."""
     problem = _banded_problem(with_residuals)
-    compiled = sqp.compile_problem(problem)
+    compiled = coloured.compile_problem(problem)
     x0, params = jnp.linspace(0.2, 1.3, 12), 0.7
     compiled.derivatives(x0, params)  # probes the pattern here
     directions, colour, _ = compiled.colouring
-    assert int(colour.max()) + 1 == (2 if with_residuals else 3) and directions.shape == (sqp.COLOUR_PADDING, 12)
+    assert int(colour.max()) + 1 == (2 if with_residuals else 3) and directions.shape == (coloured.COLOUR_PADDING, 12)
     x = x0 + jnp.asarray(np.random.default_rng(3).uniform(-0.5, 0.5, 12))
     f, h, g, grad, jac_h, jac_g, jac_r = compiled.derivatives(x, params)
     exact = jax.jacfwd(lambda y: problem.evaluate(y, params))(x)
@@ -167,17 +169,17 @@ def test_gait_derivatives_coloured_equal_dense():
               codesign.gait_model(codesign.catalogue_design(mass_class="18kg"), 0.417, 25.0)]
     params = [jax.tree.map(lambda a: jnp.asarray(a, float), m) for m in models]
     x0 = gait.initial_guess(models[0], settings, solver.leg_length)
-    coloured = sqp.compile_problem(solver.problem)
-    coloured.derivatives(x0, params[0])
-    colours = int(coloured.colouring[1].max()) + 1
+    differences = coloured.compile_problem(solver.problem)
+    differences.derivatives(x0, params[0])
+    colours = int(differences.colouring[1].max()) + 1
     assert colours <= settings.size // 2, colours
     x = np.asarray(x0) + 1e-2 * np.random.default_rng(4).standard_normal(settings.size)
     steps = sqp.SQPOptions.step * np.maximum(1.0, np.abs(x))
 
     def outputs(point, p):  # (f, h, g, r) as numpy, from the single-point program
-        return [np.atleast_1d(np.asarray(a)) for a in coloured._outputs(jnp.asarray(point), p)]
+        return [np.atleast_1d(np.asarray(a)) for a in differences._outputs(jnp.asarray(point), p)]
     for p in params:
-        found = coloured.derivatives(jnp.asarray(x), p)
+        found = differences.derivatives(jnp.asarray(x), p)
         columns = [[(a - b) / (2 * h) for a, b in zip(outputs(x + h * e, p), outputs(x - h * e, p))]
                    for h, e in zip(steps, np.eye(x.size))]
         dense = [np.stack([column[k] for column in columns], axis=-1) for k in range(4)]  # f, h, g, r: (m, n)
@@ -200,18 +202,18 @@ def test_gait_solutions_are_kkt_points_and_fixed_points():
     x0 = jnp.stack([gait.initial_guess(model, settings, solver.leg_length, family=f) for f in families])
     solutions = solver.solve(["straight", "flexed impact"], [model, model], x0=x0)
     for solution in solutions:
-        assert solution.status == al.CONVERGED, (solution.status, solution.violations)
+        assert solution.status == nlp.CONVERGED, (solution.status, solution.violations)
         assert solution.max_violation <= 1e-4 and solution.stationarity <= 1e-3
         assert np.all(solution.multipliers_in >= 0)
     best = min(solutions, key=lambda s: s.cost)
     again, = solver.solve(["again"], [model], x0=jnp.asarray(best.x)[None])
-    assert again.status == al.CONVERGED
+    assert again.status == nlp.CONVERGED
     assert again.cost == pytest.approx(best.cost, rel=1e-6)
     assert again.outer_iterations <= 5
 
     # the smallest power limit from the cheaper gait: SLSQP on (x, M_W) minimising M_W
     minimum, = solver.minimise_power_limit(["smallest"], [model], best.x[None])
-    assert minimum.status == al.CONVERGED, (minimum.status, minimum.violations)
+    assert minimum.status == nlp.CONVERGED, (minimum.status, minimum.violations)
     assert minimum.stationarity <= 1e-3  # a KKT point of min M_W: the limit is locally smallest
     solve_grid = minimum.refinement["solve_grid_limit_W"]
     assert solve_grid < 0.9 * 20.0

@@ -16,7 +16,7 @@ standing). Constraints, at the physics samples of the planned phases:
   and the bound lets the simulated time end soon after the third step), angles within
   :data:`ANGLE_BOUNDS`.
 
-Derivatives are central differences of width :data:`DIFFERENCE_STEP` (``al.central_differences``),
+Derivatives are central differences of width :data:`DIFFERENCE_STEP` (``nlp.central_differences``),
 not reverse mode: through 5 700 contact steps the exact gradient of the speed is no guide (measured
 at a feasible fast gait: with 2 ms steps its shift-time entry has the opposite sign to every
 difference's, with 4 ms steps its entries reach 1e32); it is that of single contact events, while
@@ -39,6 +39,7 @@ import numpy as np
 from biped_jax.donald import model as donald
 from biped_jax.drives import model as drives
 from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
 
 STEPS = 3
 STABILITY_MARGIN = 0.01  # m
@@ -142,7 +143,7 @@ def optimise(options: al.SolverOptions = SPEED_SOLVER_OPTIONS,
     def evaluate(z, _params):
         return speed_and_constraints(z, walk, model, gains, drive)
 
-    problem = al.ConstrainedProblem(evaluate).with_central_differences(DIFFERENCE_STEP)
+    problem = nlp.ConstrainedProblem(evaluate).with_central_differences(DIFFERENCE_STEP)
     z0 = jnp.ones((1, len(PARAMETERS)))
     result = al.solve(problem, z0, jnp.zeros(1), options, progress=progress)
     start_speed = -float(jax.jit(evaluate)(z0[0], None)[0]) * 0.01

@@ -180,7 +180,7 @@ PAPER_CHOICE = ("RE25-42V", "GP32A-66.22")
 
 def save_workspaces(path, solutions) -> None:
     """Writes the joint demand of gait solutions (``GaitSolution``) to an .npz file."""
-    from biped_jax.gait.problem import ACTUATED_INDEX
+    from biped_jax.robots.planar_biped import ACTUATED_INDEX
     arrays = {}
     for s in solutions:
         tr = s.trajectory

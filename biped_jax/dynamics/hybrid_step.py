@@ -1,4 +1,5 @@
-"""The hybrid walking step of the sagittal five-link biped in MJX.
+"""The hybrid walking step of the sagittal five-link biped in MJX: its models, kinematics and the
+single-support phase (touchdown, the step's other half, is :mod:`biped_jax.dynamics.impact`).
 
 Single support is a forward simulation of the pinned-stance chain with ``mjx.step`` (the stance foot is
 the world-fixed ``stance`` hinge, so it neither slips nor penetrates); touchdown is the perfectly
@@ -23,11 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import checks
-from biped_jax.dynamics import planar_chain
 from biped_jax.robots import registry as robots
 from biped_jax.robots.design import (
-    PLANAR_ACTUATED,
-    PLANAR_LINKS,
     Design,
     DesignLayout,
     apply_design,
@@ -35,20 +33,9 @@ from biped_jax.robots.design import (
     design_layout,
     nominal_design,
 )
-
-from biped_jax.robots.planar_biped import (  # noqa: F401 (the index maps, also read as hybrid_step's)
-    ACTUATED,
-    FLOATING_TO_PINNED,
-    N_ACTUATED,
-    N_FLOATING,
-    N_PINNED,
-    PINNED_COORDINATES,
-    RELABEL,
-    STANCE_BODY,
-)
+from biped_jax.robots.planar_biped import N_ACTUATED, N_PINNED, PLANAR_ACTUATED, PLANAR_LINKS, STANCE_BODY
 
 mjx = robots.import_mjx()
-
 
 
 @jax.tree_util.register_dataclass
@@ -83,29 +70,6 @@ class StanceTrajectory:
     qdd: jax.Array
     u: jax.Array
     ground_force: jax.Array
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class Touchdown:
-    """The impact at touchdown and the relabelled start of the next step.
-
-    Attributes:
-      q: pinned coordinates after impact and relabelling, shape (5,), rad.
-      qd: their rates, shape (5,), rad/s.
-      impulse: ground impulse on the landing foot (x, z), shape (2,), N s.
-      old_stance_foot_velocity: (x, z) velocity of the foot that leaves the ground, shape (2,), m/s.
-      floating_qd_before, floating_qd_after: floating-base velocities across the impact, shape (7,).
-      floating_q: floating-base configuration at impact (before relabelling), shape (7,).
-    """
-
-    q: jax.Array
-    qd: jax.Array
-    impulse: jax.Array
-    old_stance_foot_velocity: jax.Array
-    floating_qd_before: jax.Array
-    floating_qd_after: jax.Array
-    floating_q: jax.Array
 
 
 # ----------------------------------------------------------------------------- models and designs
@@ -159,7 +123,8 @@ def with_timestep(model, timestep):
 
 # ----------------------------------------------------------------------------- kinematics
 
-def _check_shape(name: str, value, shape: tuple) -> jax.Array:
+def check_shape(name: str, value, shape: tuple) -> jax.Array:
+    """``value`` as an array, or a ValueError naming it and both shapes."""
     value = jnp.asarray(value)
     if value.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {value.shape}")
@@ -167,7 +132,7 @@ def _check_shape(name: str, value, shape: tuple) -> jax.Array:
 
 
 def _positions(model, q):
-    q = _check_shape("q", q, (model.nq,))
+    q = check_shape("q", q, (model.nq,))
     data = mjx.make_data(model).replace(qpos=q)
     return mjx.kinematics(model, data)
 
@@ -183,7 +148,7 @@ def site_position(model, q: jax.Array, site: str) -> jax.Array:
 def site_velocity(model, q: jax.Array, qd: jax.Array, site: str) -> tuple[jax.Array, jax.Array]:
     """(position (3,) m, velocity (3,) m/s) of a named site."""
     # qd is the tangent of q here (the same shape: equal to the rates where nq == nv, as in the planar chain)
-    q, qd = _check_shape("q", q, (model.nq,)), _check_shape("qd", qd, (model.nq,))
+    q, qd = check_shape("q", q, (model.nq,)), check_shape("qd", qd, (model.nq,))
     return jax.jvp(lambda q_: site_position(model, q_, site), (q,), (qd,))
 
 
@@ -226,8 +191,8 @@ def stance_rollout(pinned, q0: jax.Array, qd0: jax.Array, controls: jax.Array) -
     Returns:
       The trajectory; step k applies ``controls[k]`` from state k.
     """
-    q0 = _check_shape("q0", q0, (N_PINNED,))
-    qd0 = _check_shape("qd0", qd0, (N_PINNED,))
+    q0 = check_shape("q0", q0, (N_PINNED,))
+    qd0 = check_shape("qd0", qd0, (N_PINNED,))
     controls = jnp.asarray(controls)
     if controls.ndim != 2 or controls.shape[1] != N_ACTUATED:
         raise ValueError(f"controls must have shape (T, {N_ACTUATED}), got {controls.shape}")
@@ -289,107 +254,3 @@ def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.
     data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
     data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
     return stance_force(pinned, data.replace(qacc=qdd))
-
-
-# ----------------------------------------------------------------------------- touchdown
-
-def pinned_to_floating(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Floating-base state (shape (7,) each) of a single-support state, stance foot at the origin."""
-    return jax.jvp(lambda q_: _floating_coordinates(site_position(pinned, q_, "hip")[jnp.array([0, 2])], q_),
-                   (q,), (qd,))
-
-
-def _floating_coordinates(hip: jax.Array, q: jax.Array) -> jax.Array:
-    """Floating-base coordinates (7,) from the hip's world (x, z) and the pinned angles q (5,)."""
-    stance, knee1, hip1, hip2, knee2 = q
-    return jnp.stack([hip[0], hip[1], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
-
-
-def floating_to_pinned(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Pinned coordinates (shape (5,) each) of a floating state whose leg 1 is on the ground."""
-    transform = jnp.asarray(FLOATING_TO_PINNED, qf.dtype)
-    return transform @ qf, transform @ qfd
-
-
-def relabel(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Swaps legs 1 and 2 of a floating-base state."""
-    return qf[RELABEL], qfd[RELABEL]
-
-
-def foot_jacobian(floating, qf: jax.Array, foot: str) -> jax.Array:
-    """d(foot x, z)/dq of the floating model, shape (2, 7)."""
-    return jax.jacfwd(lambda q_: site_position(floating, q_, foot)[jnp.array([0, 2])])(qf)
-
-
-def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Perfectly inelastic impact of foot 2 with the ground.
-
-    Solves M (qd+ - qd-) = J2^T Lambda with J2 qd+ = 0 (the landing foot at rest afterwards).
-
-    Returns:
-      (qd+ shape (7,), Lambda = ground impulse on foot 2 (x, z), shape (2,), N s).
-    """
-    return inelastic_impact(mass_matrix(floating, qf), foot_jacobian(floating, qf, "foot2"), qfd_before)
-
-
-def chain_touchdown(chain: planar_chain.PlanarChain, pinned, q: jax.Array, qd: jax.Array) -> Touchdown:
-    """:func:`touchdown` by the closed-form planar chain of the pinned model (no MJX).
-
-    The floating model's impact in other coordinates: the pinned chain's angles extended by the
-    translation (x, z) of its root, so every point moves as r = p + r_pinned(q) and the inertia is
-    [[m I, sum_i m_i Jc_i], [sum_i m_i Jc_i^T, M_pinned]] (armature included); the same mechanics, so
-    the same impulse and velocities to rounding (``tests/test_planar_chain.py``). Why: MJX's impact
-    map on the floating model was two thirds of the gait rollout's compile time (measured 2026-12-02
-    in 48 knot spans: 18.5 s of 27 s alone). ``chain`` is the structure of ``pinned``
-    (:class:`~biped_jax.dynamics.planar_chain.PlanarChain`); q, qd as :func:`touchdown`."""
-    q = _check_shape("q", q, (N_PINNED,))
-    qd = _check_shape("qd", qd, (N_PINNED,))
-
-    def to_floating(q_):  # as pinned_to_floating
-        return _floating_coordinates(planar_chain.site_motion(chain, pinned, q_, jnp.zeros_like(q_), "hip")[0], q_)
-
-    qf, qfd_before = jax.jvp(to_floating, (q,), (qd,))
-    state = planar_chain.kinematics(chain, pinned, q, qd)
-    mass = pinned.body_mass[1:]
-    momentum = jnp.einsum("i,iaj->aj", mass, state.com_jacobian)  # (2, 5): linear momentum per rate
-    inertia = jnp.block([[jnp.sum(mass) * jnp.eye(2, dtype=q.dtype), momentum],
-                         [momentum.T, planar_chain.mass_matrix(chain, pinned, state)]])
-    landing = jnp.concatenate([jnp.eye(2, dtype=q.dtype), planar_chain.site_jacobian(chain, pinned, q, "foot2")], 1)
-    after, impulse = inelastic_impact(inertia, landing, jnp.concatenate([jnp.zeros(2, q.dtype), qd]))
-    root_velocity, rates = after[:2], after[2:]
-    qfd_after = jax.jvp(to_floating, (q,), (rates,))[1] + jnp.concatenate([root_velocity, jnp.zeros(5, q.dtype)])
-    old_foot_velocity = root_velocity + planar_chain.site_jacobian(chain, pinned, q, "foot1") @ rates
-    q_next, qd_next = floating_to_pinned(*relabel(qf, qfd_after))
-    return Touchdown(q=q_next, qd=qd_next, impulse=impulse, old_stance_foot_velocity=old_foot_velocity,
-                     floating_qd_before=qfd_before, floating_qd_after=qfd_after, floating_q=qf)
-
-
-def inelastic_impact(mass, jac, qd_before, xp=jnp):
-    """Velocity after, and impulse of, a perfectly inelastic impact that stops a point.
-
-    Solves the KKT system M (qd+ - qd-) = J^T Lambda, J qd+ = 0. mass (n, n), jac (k, n) (the point's
-    rows, e.g. (x, z)), qd_before (n,); ``xp`` is ``jax.numpy`` or ``numpy``. Returns (qd+ (n,),
-    Lambda (k,)).
-    """
-    n, k = mass.shape[0], jac.shape[0]
-    kkt = xp.block([[mass, -jac.T], [jac, xp.zeros((k, k), mass.dtype)]])
-    solution = xp.linalg.solve(kkt, xp.concatenate([mass @ qd_before, xp.zeros(k, mass.dtype)]))
-    return solution[:n], solution[n:]
-
-
-def touchdown(biped: PlanarBiped, q: jax.Array, qd: jax.Array) -> Touchdown:
-    """Impact of the swing foot and relabelling: the start state of the next step.
-
-    Args:
-      biped: the design's models.
-      q, qd: single-support state just before impact, shape (5,) each.
-    """
-    q = _check_shape("q", q, (N_PINNED,))
-    qd = _check_shape("qd", qd, (N_PINNED,))
-    qf, qfd_before = pinned_to_floating(biped.pinned, q, qd)
-    qfd_after, impulse = impact_map(biped.floating, qf, qfd_before)
-    old_foot_velocity = foot_jacobian(biped.floating, qf, "foot1") @ qfd_after
-    q_next, qd_next = floating_to_pinned(*relabel(qf, qfd_after))
-    return Touchdown(q=q_next, qd=qd_next, impulse=impulse,
-                     old_stance_foot_velocity=old_foot_velocity, floating_qd_before=qfd_before,
-                     floating_qd_after=qfd_after, floating_q=qf)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from biped_jax.dynamics import impact
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.dynamics import planar_chain
 from biped_jax.robots.planar_biped import GAIT_SITES
@@ -21,8 +22,10 @@ class ChainDynamics:
     """Mass matrix, bias force, stance force, site positions, the swing foot's motion and the
     touchdown from :mod:`biped_jax.dynamics.planar_chain` (closed forms, no MJX)."""
 
-    def __init__(self, biped: hs.PlanarBiped):
-        self.chain = planar_chain.PlanarChain.from_model(biped.pinned)
+    def __init__(self, biped: hs.PlanarBiped, chain: planar_chain.PlanarChain | None = None):
+        """``chain``: the structure of ``biped.pinned`` when the model is traced (read from the model
+        otherwise, which needs it concrete); every planar biped design has the same structure."""
+        self.chain = planar_chain.PlanarChain.from_model(biped.pinned) if chain is None else chain
         self.pinned = biped.pinned
 
     def terms(self, q, qd):
@@ -38,7 +41,7 @@ class ChainDynamics:
         return planar_chain.site_motion(self.chain, self.pinned, q, qd, "foot2")
 
     def touchdown(self, q, qd):
-        return hs.chain_touchdown(self.chain, self.pinned, q, qd)
+        return impact.chain_touchdown(self.chain, self.pinned, q, qd)
 
     def step(self, state, u):
         return planar_chain.stance_step(self.chain, self.pinned, state, u)
@@ -65,7 +68,7 @@ class MjxDynamics:
         return hs.swing_foot(self.pinned, q, qd)
 
     def touchdown(self, q, qd):
-        return hs.touchdown(self.biped, q, qd)
+        return impact.touchdown(self.biped, q, qd)
 
     def step(self, state, u):
         return hs.stance_step(self.pinned, state, u)

@@ -8,7 +8,6 @@ import jax.numpy as jnp
 
 from biped_jax.drives import model as drive_model
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
 
 # stays below 1e-4 in the group's own unit.
 LENGTH_SCALE = 0.1  # m

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import planar_chain
 from biped_jax.dynamics import stance
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
@@ -85,16 +86,19 @@ def reference(gait: HeuristicGait, start, end, stance, stance_rate, stance_start
     return angle, rate
 
 
-def simulate(biped: hs.PlanarBiped, gait: HeuristicGait):
-    """Runs the step; returns (trajectory, dt, touchdown index or -1, Touchdown at that index).
+def simulate(biped: hs.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
+    """Runs the step; returns (trajectory, dt, touchdown index or -1, Touchdown at that index, swing
+    foot positions and velocities).
 
-    The trajectory covers 1.5 nominal step times so that a late touchdown is still found.
+    The trajectory covers 1.5 nominal step times so that a late touchdown is still found. With
+    ``chain`` (the structure of ``biped.pinned``, :class:`~biped_jax.dynamics.planar_chain.PlanarChain`)
+    the closed-form chain steps and lands the robot, else MJX's pipeline: equal to rounding
+    (``tests/test_planar_chain.py``), and the chain's program compiles in a fraction of MJX's time.
     """
     q0, qd0, end = start_state(gait)
     dt = 1.5 * gait.step_time / gait.steps
-    # MJX's pipeline (the step checks the hybrid step's MJX physics; the closed-form chain reads the
-    # model's structure, which a traced biped does not have)
-    dynamics = stance.MjxDynamics(dataclasses.replace(biped, pinned=hs.with_timestep(biped.pinned, dt)))
+    timed = dataclasses.replace(biped, pinned=hs.with_timestep(biped.pinned, dt))
+    dynamics = stance.MjxDynamics(timed) if chain is None else stance.ChainDynamics(timed, chain)
     actuated = jnp.asarray(ACTUATED_INDEX)  # (H1, K1, H2, K2) in pinned coordinates
     start = q0[actuated]
 

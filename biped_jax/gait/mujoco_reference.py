@@ -14,7 +14,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import impact
+from biped_jax.robots import planar_biped
 from biped_jax.gait import problem as gait
 from biped_jax.robots import registry as robots
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
@@ -52,7 +53,7 @@ class CGaitRollout:
     @staticmethod
     def _assemble(theta, actuated) -> np.ndarray:
         full = np.zeros(5)
-        full[0], full[gait.ACTUATED_INDEX] = theta, actuated
+        full[0], full[planar_biped.ACTUATED_INDEX] = theta, actuated
         return full
 
     def simulate(self, x: np.ndarray, speed: float, step_length: float) -> gait.GaitTrajectory:
@@ -90,7 +91,7 @@ class CGaitRollout:
             rows["sites"].append(d.site_xpos[self._sites].copy())
             d.qacc[:] = qdd  # no contacts or limits in the pinned chain
             mujoco.mj_rnePostConstraint(m, d)
-            rows["force"].append(d.cfrc_int[hs.STANCE_BODY, [3, 5]].copy())
+            rows["force"].append(d.cfrc_int[planar_biped.STANCE_BODY, [3, 5]].copy())
             for name, value in (("q", q), ("qd", qd), ("qdd", qdd), ("u", gait.actuated_torque(mass, bias, qdd))):
                 rows[name].append(np.array(value))
         positions = np.stack(rows["sites"])
@@ -109,8 +110,8 @@ class CGaitRollout:
         mujoco.mj_jacSite(model, data, jac, None, model.site(site).id)
         return jac @ qd
 
-    def _touchdown(self, q: np.ndarray, qd: np.ndarray, pinned_data) -> hs.Touchdown:
-        """Impact map and relabelling (as hybrid_step.touchdown) with MuJoCo C kinematics."""
+    def _touchdown(self, q: np.ndarray, qd: np.ndarray, pinned_data) -> impact.Touchdown:
+        """Impact map and relabelling (as impact.touchdown) with MuJoCo C kinematics."""
         hip = pinned_data.site_xpos[self.pinned.site("hip").id]
         hip_velocity = self._site_velocity(self.pinned, pinned_data, "hip", qd)
         stance, knee1, hip1, hip2, knee2 = q
@@ -126,9 +127,9 @@ class CGaitRollout:
             mujoco.mj_jacSite(m, d, jac, None, m.site(foot).id)
             jacobians[foot] = jac[[0, 2]]
         jac = jacobians["foot2"]
-        qfd_after, impulse = hs.inelastic_impact(self._floating_mass, jac, qfd, xp=np)
-        relabelled = hs.RELABEL
-        q_next, qd_next = hs.FLOATING_TO_PINNED @ qf[relabelled], hs.FLOATING_TO_PINNED @ qfd_after[relabelled]
-        return hs.Touchdown(q=q_next, qd=qd_next, impulse=impulse,
-                            old_stance_foot_velocity=jacobians["foot1"] @ qfd_after,
-                            floating_qd_before=qfd, floating_qd_after=qfd_after, floating_q=qf)
+        qfd_after, impulse = impact.inelastic_impact(self._floating_mass, jac, qfd, xp=np)
+        relabelled, to_pinned = planar_biped.RELABEL, planar_biped.FLOATING_TO_PINNED
+        q_next, qd_next = to_pinned @ qf[relabelled], to_pinned @ qfd_after[relabelled]
+        return impact.Touchdown(q=q_next, qd=qd_next, impulse=impulse,
+                                old_stance_foot_velocity=jacobians["foot1"] @ qfd_after,
+                                floating_qd_before=qfd, floating_qd_after=qfd_after, floating_q=qf)

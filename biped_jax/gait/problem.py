@@ -76,14 +76,11 @@ from biped_jax.gait.splines import (
     stance_nodes,
 )
 from biped_jax.gait.starts import IMPACT_FAMILIES, START_FAMILIES, StartFamily, initial_guess, project
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP
 
 __all__ = [
-    "ACTUATED_INDEX",
     "CONSTRAINT_GROUPS",
     "DYNAMICS",
     "FORCE_SCALE",
-    "GAIT_SITES",
     "GaitModel",
     "GaitSettings",
     "GaitTrajectory",
@@ -96,7 +93,6 @@ __all__ = [
     "RATE_SCALE",
     "REFINEMENT",
     "START_FAMILIES",
-    "SWAP",
     "StartFamily",
     "TORQUE_SCALE",
     "VOLTAGE_SCALE",

@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from biped_jax.drives.model import RPM
-from biped_jax.gait.problem import ACTUATED_INDEX, CONSTRAINT_GROUPS
+from biped_jax.gait.problem import CONSTRAINT_GROUPS
+from biped_jax.robots.planar_biped import ACTUATED_INDEX
 from biped_jax.gait.solver import GaitSolution
 from biped_jax.report import outputs
 

@@ -12,9 +12,10 @@ import numpy as np
 
 from biped_jax import checks
 from biped_jax.drives import model as drive_model
+from biped_jax.dynamics import impact
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.robots.design import Design
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
+from biped_jax.robots.planar_biped import ACTUATED_INDEX
 from biped_jax.robots.specs import PLANAR_SPECS
 
 #: The single-support dynamics a rollout can use (:class:`GaitSettings`).
@@ -187,7 +188,7 @@ class GaitTrajectory:
     ground_force: jax.Array
     swing_foot: jax.Array
     heights: jax.Array
-    touchdown: hs.Touchdown
+    touchdown: impact.Touchdown
     swing_foot_velocity: jax.Array
     continuity: jax.Array
 

@@ -1,18 +1,12 @@
-"""Solving gait problems: many models in one batched augmented-Lagrangian call, with status.
-
-A solve is `converged` only when the solver converged, every constraint group's violation is at most
-:data:`VIOLATION_TOLERANCE` in its own unit (m, rad, rad/s, N, N m, W, N s) on a fresh re-simulation
-of the solution, *and* the solution passes the refinement check: re-simulated with the same decision
-vector on a grid :data:`biped_jax.gait.problem.REFINEMENT` times finer, J changes by less than
-:data:`REFINED_COST_CHANGE` and every group stays within :func:`refined_tolerance`. Otherwise the
-status is :data:`GRID_DEPENDENT`.
+"""Solving gait problems: many models in one batch (SLSQP one after another, or the batched augmented
+Lagrangian), each solution re-simulated and judged (:mod:`biped_jax.gait.verdict`: violations in own
+units, the refinement check, the status); the smallest power limit at which a gait walks.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from typing import Callable
 
 import jax
@@ -21,17 +15,15 @@ import numpy as np
 
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.gait import problem as gait
+from biped_jax.gait import verdict
 from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
+from biped_jax.optim import coloured
+from biped_jax.optim import limit_minimisation
 from biped_jax.optim import sqp
 from biped_jax.robots.specs import PLANAR_SPECS
 
-#: Largest violation accepted, in each constraint group's own unit.
-VIOLATION_TOLERANCE = 1e-4
 
-#: Status of a solution that converged on its grid but fails the refinement check.
-GRID_DEPENDENT = "grid dependent"
-#: Largest relative change of J between the solution's grid and the refined one.
-REFINED_COST_CHANGE = 5e-3
 #: The scale of M_W / M_W0 in SLSQP's variables when minimising the power limit (the gait variables are
 #: scaled by the Gauss-Newton matrix of J at the start): the first step lowers the limit by about 1 %,
 #: then the quasi-Newton matrix takes over (M1 from 20 W in 16 spans: 5.9 W after 10 iterations,
@@ -39,18 +31,6 @@ REFINED_COST_CHANGE = 5e-3
 POWER_LIMIT_STEP = 0.1
 #: The gait variables' Gauss-Newton regularisation there when the options turn preconditioning off.
 SQP_PRECONDITION = sqp.SQPOptions.precondition
-#: Largest violation on the refined grid per unit (power: a fraction of M_W, see refined_tolerance).
-_REFINED_TOLERANCE = {"m": 1e-4, "rad": 1e-3, "rad/s": 1e-3, "m/s": 1e-3, "N": 1.0, "N m": 0.05,
-                      "N s": 1e-3, "V": 0.1}
-REFINED_POWER_FRACTION = 0.01
-
-
-def refined_tolerance(group: str, power_limit: float) -> float:
-    """The refinement check's tolerance for a constraint group, in the group's own unit: 1 % of M_W for
-    the power limit, 1 N for forces, 1e-3 rad/s for rates, 0.1 mm for lengths, 1e-3 rad for angles."""
-    if group == "power_limit":
-        return REFINED_POWER_FRACTION * power_limit
-    return _REFINED_TOLERANCE[gait.CONSTRAINT_GROUPS[group][1]]
 
 
 #: Solver settings for the gait: scaled tolerance 1e-5 keeps every group below 1e-4 in its own unit
@@ -123,48 +103,6 @@ class GaitSolution:
     starts: list = dataclasses.field(default_factory=list)
 
 
-@functools.partial(jax.jit, static_argnames="settings")
-def grid_check(trajectory: gait.GaitTrajectory, model: gait.GaitModel, settings: gait.GaitSettings):
-    """Each constraint group's largest violation (its own unit) and the objective (the Joule energy of
-    ``model.drives``; the integral of u^T u for ideal drives) of one rollout on the grid ``settings``.
-    Compiled: one program per grid instead of an eager XLA program per operation and shape."""
-    groups = gait.constraint_groups(trajectory, model, settings)
-    return gait.violations(groups), gait.joule_energy(trajectory, model.drives)
-
-
-def refinement_record(coarse_cost: float, fine: gait.GaitTrajectory, model: gait.GaitModel,
-                      settings: gait.GaitSettings) -> dict:
-    """The refinement check of one solution: J and each group's violation on the finer grid
-    ``settings`` (the same decision vector), and whether it passes. J is the problem's own objective,
-    the Joule energy of ``model.drives`` (the integral of u^T u for the paper's ideal drives)."""
-    groups, cost = grid_check(fine, model, settings)
-    violations = {k: float(v) for k, v in groups.items()}
-    cost = float(cost)
-    change = abs(cost - coarse_cost) / max(abs(coarse_cost), 1e-12)
-    limit = float(model.power_limit)
-    failed = sorted(k for k, v in violations.items() if not v <= refined_tolerance(k, limit))
-    if not change <= REFINED_COST_CHANGE:
-        failed.insert(0, "cost")
-    return {"steps": settings.steps, "cost": cost, "cost_change": change, "violations": violations,
-            "power_margin_fraction": violations["power_limit"] / limit, "failed": failed,
-            "passed": not failed}
-
-
-def classify(solver_status: str, finite: bool, violations: dict, refinement: dict,
-             require_refinement: bool = True) -> str:
-    """The reported status of one solve: ``diverged`` for a NaN anywhere, ``iteration limit`` when the
-    solver's scaled feasibility is not met in every group's own unit, :data:`GRID_DEPENDENT` when it
-    converged on its grid but fails the refinement check (unless ``require_refinement`` is off), else
-    the solver's own status."""
-    if not finite:
-        return al.DIVERGED
-    if solver_status == al.CONVERGED and max(violations.values()) > VIOLATION_TOLERANCE:
-        return al.ITERATION_LIMIT  # feasible only in the scaled sense: keep iterating
-    if solver_status == al.CONVERGED and require_refinement and not refinement["passed"]:
-        return GRID_DEPENDENT
-    return solver_status
-
-
 class GaitSolver:
     """Compiles once per :class:`~biped_jax.gait.problem.GaitSettings` and solves batches of models.
 
@@ -192,7 +130,7 @@ class GaitSolver:
                 gait.constraint_groups(trajectory, model, settings_))
             return gait.cost_residuals(trajectory, model.drives), equalities, inequalities
 
-        self.problem = al.ConstrainedProblem.from_residuals(residuals)
+        self.problem = nlp.ConstrainedProblem.from_residuals(residuals)
 
         self.compiled = al.compile_problem(self.problem)
         self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
@@ -218,12 +156,12 @@ class GaitSolver:
         other.options = options
         return other
 
-    def _sqp_compiled(self, options: sqp.SQPOptions) -> sqp.CompiledSQP:
+    def _sqp_compiled(self, options: sqp.SQPOptions) -> coloured.CompiledSQP:
         """SLSQP's compiled functions of the gait problem (the power-limit minimisation runs on them:
-        :class:`~biped_jax.optim.sqp.LimitMinimisation`)."""
+        :class:`~biped_jax.optim.limit_minimisation.LimitMinimisation`)."""
         key = (options.step, options.sparse)
         if key not in self._compiled_sqp:
-            self._compiled_sqp[key] = sqp.compile_problem(self.problem, options.step, options.sparse)
+            self._compiled_sqp[key] = coloured.compile_problem(self.problem, options.step, options.sparse)
         return self._compiled_sqp[key]
 
     @staticmethod
@@ -289,7 +227,7 @@ class GaitSolver:
             scale[-1, -1] = POWER_LIMIT_STEP
             scales.append(scale)
         # the limit as a variable on the energy problem's compiled functions: M_W = t M_W0 (t a float)
-        limit = sqp.LimitMinimisation(energy, lambda model, t: dataclasses.replace(
+        limit = limit_minimisation.LimitMinimisation(energy, lambda model, t: dataclasses.replace(
             model, power_limit=model.power_limit * t))
         result = sqp.solve(self.problem, start, batch, options, compiled=limit,
                            progress=self._sqp_progress(progress, names), scales=np.stack(scales))
@@ -307,7 +245,7 @@ class GaitSolver:
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
 
-    def _report(self, names: list[str], models: list[gait.GaitModel], result: al.SolveResult,
+    def _report(self, names: list[str], models: list[gait.GaitModel], result: nlp.SolveResult,
                 refined: gait.GaitTrajectory | None = None) -> list[GaitSolution]:
         """GaitSolutions of a solver result: re-simulated, checked on the refined grid (``refined``:
         that rollout of ``result.x`` when the caller has it), classified."""
@@ -316,16 +254,16 @@ class GaitSolver:
         if refined is None and self.check_refinement:
             refined = self.simulate_refined(result.x, batch)
         solutions = []
-        numeric = jax.tree.map(np.asarray, batch)  # strong float64 leaves: one grid_check program per grid
+        numeric = jax.tree.map(np.asarray, batch)  # strong float64 leaves: one verdict.grid_check program per grid
         for b, (name, model) in enumerate(zip(names, models)):
             trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
             model_b = jax.tree.map(lambda a: a[b], numeric)
-            violations = {k: float(v) for k, v in grid_check(trajectory, model_b, self.settings)[0].items()}
-            refinement = {"skipped": True, "passed": None} if refined is None else refinement_record(
+            violations = {k: float(v) for k, v in verdict.grid_check(trajectory, model_b, self.settings)[0].items()}
+            refinement = {"skipped": True, "passed": None} if refined is None else verdict.refinement_record(
                 float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined), model_b,
                 self.refined_settings)
             finite = bool(np.all(np.isfinite(result.x[b])) and np.all(np.isfinite(trajectory.u)))
-            status = classify(result.status[b], finite, violations, refinement, self.require_refinement)
+            status = verdict.classify(result.status[b], finite, violations, refinement, self.require_refinement)
             solutions.append(GaitSolution(
                 name=name, mass_kg=float(model.design.total_mass), speed_mps=float(model.speed),
                 power_limit_W=float(model.power_limit), step_length_m=float(model.step_length),
@@ -340,57 +278,3 @@ class GaitSolver:
         return solutions
 
 
-def coarse_settings(settings: gait.GaitSettings, factor: int = 4) -> gait.GaitSettings:
-    """The reference space ``factor`` times coarser (fewer knot spans, the same grading, so the fine
-    space contains it when ``spans`` is a multiple of ``factor``), on a grid with as many steps per
-    span, shot in as many segments as divide both (multiple shooting kept where it fits): the
-    continuation's first stage."""
-    spans = max(1, settings.spans // factor)
-    return dataclasses.replace(settings, spans=spans, segments=math.gcd(spans, settings.segments))
-
-
-def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitModel],
-                     families=gait.START_FAMILIES, coarse: GaitSolver | None = None,
-                     progress: Callable[[str, int, dict], None] | None = None,
-                     finished: Callable[[str, int], None] | None = None) -> list[GaitSolution]:
-    """Globalisation by many starts (and optionally continuation in the reference space).
-
-    Every model from every heuristic family in ``families`` (:data:`gait.START_FAMILIES`) in one
-    batch; per model the best converged start (else the least violated) is kept. With ``coarse``, that
-    batch runs in the coarse space and the kept starts are carried into the fine space
-    (:func:`gait.project`) and solved there, all models in one batch (the study's way: the coarse
-    stage is cheap). Without it the starts are solved in the fine space directly (measured on M2:
-    every family solved in the 4-span space reaches the same J = 4.62 family, which the fine space
-    then keeps, so the coarse stage narrows the search). Each returned solution
-    lists every start's outcome in ``starts``. No start comes from anywhere but the product's own
-    heuristics. ``progress(stage, iteration, row)`` follows the solver of each stage ("starts", then
-    "refined space"); ``finished(stage, problems)`` is called when a stage has solved all its problems.
-    """
-    count = len(families)
-    first_solver = coarse or fine
-    x0 = jnp.stack([gait.initial_guess(m, first_solver.settings, fine.leg_length, family=f)
-                    for m in models for f in families])
-    tagged = (lambda stage: (lambda i, row: progress(stage, i, row))) if progress else (lambda stage: None)
-    first = first_solver.solve([f"{n} / {f.name}" for n in names for f in families],
-                               [m for m in models for _ in families], x0=x0, progress=tagged("starts"))
-    if finished:
-        finished("starts", len(first))
-    chosen, spreads, best_solutions = [], [], []
-    for b in range(len(models)):
-        group = first[b * count:(b + 1) * count]
-        spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation}
-                        for f, s in zip(families, group)])
-        feasible = [s for s in group if s.status in (al.CONVERGED, GRID_DEPENDENT)]
-        best = min(feasible, key=lambda s: s.cost) if feasible else min(group, key=lambda s: s.max_violation)
-        best_solutions.append(best)
-        if coarse is not None:
-            chosen.append(gait.project(best.x, coarse.settings, fine.settings, best.trajectory))
-    if coarse is None:
-        solutions = [dataclasses.replace(s, name=n) for s, n in zip(best_solutions, names)]
-    else:
-        solutions = fine.solve(names, models, x0=jnp.asarray(np.stack(chosen)), progress=tagged("refined space"))
-        if finished:
-            finished("refined space", len(solutions))
-    for solution, spread in zip(solutions, spreads):
-        solution.starts = spread
-    return solutions

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.interpolate import BSpline
 
 from biped_jax.gait.settings import GaitSettings
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
+from biped_jax.robots.planar_biped import SWAP
 
 # ----------------------------------------------------------------------------- the joint references
 

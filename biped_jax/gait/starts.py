@@ -11,7 +11,7 @@ from scipy.interpolate import CubicHermiteSpline
 
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
 from biped_jax.gait.splines import basis, greville, pack, reference, segment_starts
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, SWAP  # noqa: F401 (also read as gait's)
+from biped_jax.robots.planar_biped import SWAP
 
 # ----------------------------------------------------------------------------- starting points
 

@@ -8,7 +8,7 @@ import copy
 import mujoco
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import impact
 from biped_jax.humanoid.controller import Gains, with_gains
 from biped_jax.humanoid.model import SIDES, Layout, sagittal_columns
 from biped_jax.humanoid.walk import Replay
@@ -38,7 +38,7 @@ def rigid_impact(mj_model: mujoco.MjModel, layout: Layout, qpos: np.ndarray, qve
     mujoco.mj_jacSite(mj_model, data, jac, None, layout.foot_site[1 - stance])
     columns = sagittal_columns(layout, stance)
     before = qvel[columns]
-    after, impulse = hs.inelastic_impact(mass[np.ix_(columns, columns)], jac[[0, 2]][:, columns], before, xp=np)
+    after, impulse = impact.inelastic_impact(mass[np.ix_(columns, columns)], jac[[0, 2]][:, columns], before, xp=np)
     return after - before, impulse
 
 

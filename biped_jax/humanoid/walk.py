@@ -11,8 +11,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from biped_jax.dynamics import impact
 from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.robots import planar_biped
 from biped_jax.humanoid.controller import (
     DEFAULT_GAINS,
     Gains,
@@ -107,12 +108,12 @@ def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitRefer
     """(qpos, qvel) of the planarised humanoid at the optimal step's start, leg l standing at x = 0."""
     step_time = float(reference.step_time)
     q0 = np.zeros(5)
-    q0[0], q0[gait.ACTUATED_INDEX] = reference.stance_angle[0], reference.joints[0]
+    q0[0], q0[planar_biped.ACTUATED_INDEX] = reference.stance_angle[0], reference.joints[0]
     qd0 = np.zeros(5)
     qd0[0] = reference.stance_angle_slope[0] / step_time
-    qd0[gait.ACTUATED_INDEX] = np.asarray(reference.joint_slope[0]) / step_time
+    qd0[planar_biped.ACTUATED_INDEX] = np.asarray(reference.joint_slope[0]) / step_time
     pinned = hs.load_planar_biped(mass_class).pinned
-    qf, qfd = (np.asarray(a) for a in hs.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
+    qf, qfd = (np.asarray(a) for a in impact.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
     qpos, qvel = np.zeros(mj_model.nq), np.zeros(mj_model.nv)
     columns = sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd

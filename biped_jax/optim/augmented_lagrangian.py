@@ -18,86 +18,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any, Callable
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
 
-CONVERGED, INFEASIBLE, ITERATION_LIMIT, DIVERGED = "converged", "infeasible", "iteration limit", "diverged"
-#: At the penalty cap with the violation no longer falling, but too small to call the problem
-#: infeasible (below ``SolverOptions.infeasible_above``): the inner solver stalled near a feasible
-#: point, which says nothing about whether one exists.
-STALLED = "stalled"
-
-
-@dataclasses.dataclass(frozen=True)
-class ConstrainedProblem:
-    """A batchable constrained problem.
-
-    Attributes:
-      evaluate: ``(x, params) -> (f, h, g)``, the objective (scalar), the equalities and the
-        inequalities (1-D arrays, possibly empty) from one evaluation, so that an expensive simulation
-        behind all three runs once.
-      residuals: optional ``(x, params) -> (r, h, g)`` with f = r . r. When given, each inner problem
-        is preconditioned by the Gauss-Newton matrix of the augmented Lagrangian (a change of
-        variables x = x_k + P z with P^T H P = I), which L-BFGS then sees as well-conditioned.
-    """
-
-    evaluate: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]]
-    residuals: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]] | None = None
-
-    @classmethod
-    def from_functions(cls, objective, equalities, inequalities) -> "ConstrainedProblem":
-        """From three separate functions of (x, params)."""
-        return cls(lambda x, p: (objective(x, p), equalities(x, p), inequalities(x, p)))
-
-    @classmethod
-    def from_residuals(cls, residuals) -> "ConstrainedProblem":
-        """From ``residuals(x, params) -> (r, h, g)``, the objective being r . r."""
-        def evaluate(x, p):
-            r, h, g = residuals(x, p)
-            return r @ r, h, g
-        return cls(evaluate, residuals)
-
-    def with_central_differences(self, step: float) -> "ConstrainedProblem":
-        """The same problem, its derivatives in x taken by central differences of half-width ``step``
-        (in x's units) instead of automatic differentiation: see :func:`central_differences`."""
-        return ConstrainedProblem(central_differences(self.evaluate, step))
-
-
-def central_differences(evaluate: Callable, step: float) -> Callable:
-    """``evaluate(x, params)`` whose reverse-mode derivative in x is the central difference
-    (f(x + step e_i) - f(x - step e_i)) / (2 step) of every output, i = 1..n (params get none).
-
-    For objectives that are rough on small scales, such as a long rollout through contact, whose exact
-    gradient explodes (or is that of one contact event) while the trend over a parameter change of
-    ``step`` is what an optimiser can use: the difference is the gradient of f smoothed over that
-    width. A value with its derivative costs 2n + 1 evaluations, run as one vmapped call.
-    """
-    @jax.custom_vjp
-    def smoothed(x, params):
-        return evaluate(x, params)
-
-    def forward(x, params):
-        size = x.shape[-1]
-        offsets = step * jnp.eye(size, dtype=x.dtype)
-        points = jnp.concatenate([x[None], x + offsets, x - offsets])
-        values = jax.vmap(evaluate, in_axes=(0, None))(points, params)
-        centre = jax.tree.map(lambda v: v[0], values)
-        # d output / d x_i, shape (n, *output shape)
-        slopes = jax.tree.map(lambda v: (v[1:size + 1] - v[size + 1:]) / (2 * step), values)
-        return centre, (slopes, params)
-
-    def backward(residual, cotangent):
-        slopes, params = residual
-        parts = jax.tree.map(lambda s, c: jnp.tensordot(s, c, axes=c.ndim), slopes, cotangent)
-        grad_x = sum(jax.tree.leaves(parts))
-        return grad_x, jax.tree.map(jnp.zeros_like, params)
-
-    smoothed.defvjp(forward, backward)
-    return smoothed
+from biped_jax.optim import gauss_newton, line_search, nlp
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +40,7 @@ class SolverOptions:
       penalty_initial, penalty_growth, penalty_max: rho schedule; rho grows when the violation did not
         fall to a quarter and is above 10 x tolerance (near the tolerance the multipliers finish the
         job); a problem still infeasible at penalty_max is declared infeasible when its scaled
-        violation exceeds infeasible_above, else stalled (see :data:`STALLED`).
+        violation exceeds infeasible_above, else stalled (see :data:`nlp.STALLED`).
       memory: L-BFGS memory.
       armijo: sufficient-decrease constant of the line search; max_backtracks halvings at most.
       precondition_every: inner iterations between refreshes of the Gauss-Newton preconditioner
@@ -146,45 +74,6 @@ class SolverOptions:
     acceptable_iterations: int = 3
 
 
-@dataclasses.dataclass
-class SolveResult:
-    """Per-problem outcome, each array with leading batch dimension B.
-
-    Attributes:
-      x: solution, (B, n). cost: f, (B,). equalities, inequalities: h and g at x (scaled), (B, m).
-      violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf / max(1, |f|), (B,).
-      status: list of B strings. outer_iterations, gradients: counts, (B,). wall_time_s: float.
-      multipliers_eq, multipliers_in: the final multiplier estimates of h and g, (B, m) each (the
-        first-order estimates lam + rho c(x) of the last update: at a KKT point, the sensitivity of the
-        optimal f to the problem data, see :func:`optimal_value_gradient`).
-      history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients,
-        stationarity, and the iterate x (B, n) (lets a caller checkpoint a long solve).
-    """
-
-    x: np.ndarray
-    cost: np.ndarray
-    equalities: np.ndarray
-    inequalities: np.ndarray
-    violation: np.ndarray
-    stationarity: np.ndarray
-    status: list
-    outer_iterations: np.ndarray
-    gradients: np.ndarray
-    wall_time_s: float
-    history: list
-    multipliers_eq: np.ndarray
-    multipliers_in: np.ndarray
-
-
-def _violation(h, g):
-    parts = [jnp.zeros(h.shape[:-1])]
-    if h.shape[-1]:
-        parts.append(jnp.max(jnp.abs(h), axis=-1))
-    if g.shape[-1]:
-        parts.append(jnp.max(jnp.maximum(g, 0.0), axis=-1))
-    return jnp.max(jnp.stack(parts), axis=0)
-
-
 @dataclasses.dataclass(frozen=True)
 class CompiledProblem:
     """The compiled, vmapped functions :func:`solve` calls; build once with :func:`compile_problem`
@@ -201,7 +90,7 @@ def lagrangian_value(f, h, g, lam_eq, lam_in, rho):
     return value + jnp.sum(jnp.maximum(0.0, lam_in + rho * g) ** 2 - lam_in**2) / (2 * rho)
 
 
-def compile_problem(problem: ConstrainedProblem) -> CompiledProblem:
+def compile_problem(problem: nlp.ConstrainedProblem) -> CompiledProblem:
     """value_and_grad of the augmented Lagrangian (and the residual Jacobian, if residuals exist)."""
     def lagrangian(x, params, lam_eq, lam_in, rho):
         f, h, g = problem.evaluate(x, params)
@@ -209,68 +98,18 @@ def compile_problem(problem: ConstrainedProblem) -> CompiledProblem:
     value_and_grad = jax.jit(jax.vmap(jax.value_and_grad(lagrangian, has_aux=True)))
     jacobian = None
     if problem.residuals is not None:
-        jacobian = _forward_difference_jacobian(problem.residuals)
+        jacobian = gauss_newton.forward_difference_jacobian(problem.residuals)
     return CompiledProblem(value_and_grad, jacobian)
-
-
-def _forward_difference_jacobian(residuals):
-    """Batched Jacobians of (r, h, g) by forward differences, shapes (B, m, n) each.
-
-    The preconditioner needs only an approximate Gauss-Newton matrix, so n + 1 forward evaluations
-    (one vmapped call) replace forward-mode autodiff, whose compilation through a long rollout costs
-    minutes on a small CPU. Steps of 1e-6 (relative) in float64 give about 6 correct digits.
-    """
-    evaluate_points = jax.vmap(jax.vmap(residuals, in_axes=(0, None)), in_axes=(0, 0))
-
-    @jax.jit
-    def jacobian(x, params):
-        steps = 1e-6 * jnp.maximum(1.0, jnp.abs(x))
-        size = x.shape[-1]
-        offsets = jnp.concatenate([jnp.zeros((1, size), x.dtype), jnp.eye(size, dtype=x.dtype)])
-        points = x[:, None, :] + offsets[None] * steps[:, None, :]
-        values = evaluate_points(points, params)
-        return tuple(jnp.swapaxes((v[:, 1:] - v[:, :1]) / steps[:, :, None], 1, 2) for v in values)
-    return jacobian
-
-
-@jax.jit
-def _gauss_newton_preconditioner(jac_r, jac_h, jac_g, g, lam_in, rho):
-    """P with P^T H P = I for H = 2 Jr'Jr + rho Jh'Jh + rho Jg'A Jg (A: active inequalities);
-    shapes (B, m, n) -> (B, n, n)."""
-    active = (lam_in + rho[:, None] * g > 0).astype(g.dtype)
-    hessian = (2 * jnp.einsum("bmi,bmj->bij", jac_r, jac_r)
-               + rho[:, None, None] * jnp.einsum("bmi,bmj->bij", jac_h, jac_h)
-               + rho[:, None, None] * jnp.einsum("bmi,bm,bmj->bij", jac_g, active, jac_g))
-    diagonal = jnp.diagonal(hessian, axis1=1, axis2=2)
-    # Regularise: directions with no curvature keep a step of the order of the others.
-    shift = 1e-8 * jnp.max(diagonal, axis=1) + 1e-12
-    hessian = hessian + shift[:, None, None] * jnp.eye(hessian.shape[-1])
-    factor = jnp.linalg.cholesky(hessian)
-    identity = jnp.broadcast_to(jnp.eye(hessian.shape[-1]), hessian.shape)
-    return jax.scipy.linalg.solve_triangular(jnp.swapaxes(factor, 1, 2), identity, lower=False)
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class _Point:
-    """The augmented Lagrangian at a batch of iterates: its value and gradient (B,), (B, n), and the
-    objective and constraints it was made of, (B,), (B, m_h), (B, m_g)."""
-
-    value: jax.Array
-    f: jax.Array
-    h: jax.Array
-    g: jax.Array
-    grad: jax.Array
 
 
 @dataclasses.dataclass(frozen=True)
 class _OuterState:
     """What the outer iterations carry, one entry per problem of the batch: the iterate and its
-    :class:`_Point`, the multipliers and penalty (jax arrays), and the bookkeeping (numpy) that decides
-    the status."""
+    :class:`~biped_jax.optim.line_search.Point`, the multipliers and penalty (jax arrays), and the
+    bookkeeping (numpy) that decides the status."""
 
     x: jax.Array
-    point: _Point
+    point: line_search.Point
     lam_eq: jax.Array
     lam_in: jax.Array
     rho: jax.Array
@@ -287,60 +126,13 @@ class _OuterState:
     best_violation: np.ndarray
 
 
-def _evaluate(lagrangian: Callable, x, params, lam_eq, lam_in, rho) -> _Point:
-    (value, (f, h, g)), grad = lagrangian(x, params, lam_eq, lam_in, rho)
-    return _Point(value, f, h, g, grad)
-
-
-def _where(mask, a, b):
-    """Per problem: a where ``mask`` (B,), else b (any trailing shape)."""
-    return jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b)
-
-
-def _line_search(evaluate_at: Callable, z, update, slope, point: _Point, inner_active: np.ndarray,
-                 options: SolverOptions):
-    """Backtracking (Armijo) along -update from z for every problem still in its inner loop.
-
-    ``evaluate_at(z) -> _Point``. Returns (z, point) with each problem's first accepted trial (or its
-    old values), the accepted mask (B,) and the gradient evaluations spent per problem (B,)."""
-    batch = z.shape[0]
-    step = jnp.ones(batch)
-    accepted = jnp.zeros(batch, dtype=bool)
-    evaluations = np.zeros(batch, dtype=int)
-    best_z, best = z, point
-    for _ in range(options.max_backtracks):
-        trial = z - step[:, None] * update
-        t = evaluate_at(trial)
-        evaluations += inner_active
-        ok = jnp.isfinite(t.value) & (t.value <= point.value - options.armijo * step * slope) & ~accepted
-        ok = ok & jnp.all(jnp.isfinite(t.grad), axis=-1)
-        best_z = _where(ok, trial, best_z)
-        best = jax.tree.map(lambda new, old: _where(ok, new, old), t, best)
-        accepted = accepted | ok
-        if bool(jnp.all(accepted | ~jnp.asarray(inner_active))):
-            break
-        step = jnp.where(accepted, step, 0.5 * step)
-    return best_z, best, accepted, evaluations
-
-
-def _descent_direction(direction_fn: Callable, grad_z, lbfgs_state, z):
-    """L-BFGS's step (to subtract) and its slope grad . step; the gradient itself where L-BFGS gives
-    no descent direction or a non-finite one."""
-    update, lbfgs_state = direction_fn(grad_z, lbfgs_state, z)
-    slope = jnp.sum(grad_z * update, axis=-1)
-    bad = ~(slope > 0) | ~jnp.all(jnp.isfinite(update), axis=-1)
-    update = jnp.where(bad[:, None], grad_z, update)
-    slope = jnp.where(bad, jnp.sum(grad_z * grad_z, axis=-1), slope)
-    return update, slope, lbfgs_state
-
-
 def _preconditioner(compiled: CompiledProblem, state: _OuterState, params, identity):
     """The Gauss-Newton change of variables at the state's iterate (the identity without residuals or
     where it is not finite) and the gradient evaluations it cost per problem."""
     if compiled.jacobian is None:
         return identity, np.zeros(state.x.shape[0], dtype=int)
     jac_r, jac_h, jac_g = compiled.jacobian(state.x, params)
-    precondition = _gauss_newton_preconditioner(jac_r, jac_h, jac_g, state.point.g, state.lam_in, state.rho)
+    precondition = gauss_newton.preconditioner(jac_r, jac_h, jac_g, state.point.g, state.lam_in, state.rho)
     finite = jnp.all(jnp.isfinite(precondition), axis=(1, 2))[:, None, None]
     return jnp.where(finite, precondition, identity), state.active * state.x.shape[1]
 
@@ -355,7 +147,7 @@ def _inner_solve(state: _OuterState, params, compiled: CompiledProblem, lbfgs, o
     init, direction_fn = lbfgs
     inner_active = state.active.copy()
     x, point, gradients = state.x, state.point, state.gradients.copy()
-    evaluate = lambda x_: _evaluate(compiled.value_and_grad, x_, params, state.lam_eq, state.lam_in,  # noqa: E731
+    evaluate = lambda x_: line_search.evaluate(compiled.value_and_grad, x_, params, state.lam_eq, state.lam_in,  # noqa: E731
                                     state.rho)
     gradient_norm = np.zeros(x.shape[0])
     for inner in range(options.max_inner):
@@ -366,14 +158,14 @@ def _inner_solve(state: _OuterState, params, compiled: CompiledProblem, lbfgs, o
             x_ref, z = x, jnp.zeros_like(x)
             lbfgs_state = init(z)
             grad_z = jnp.einsum("bnm,bn->bm", precondition, point.grad)
-        update, slope, lbfgs_state = _descent_direction(direction_fn, grad_z, lbfgs_state, z)
-        z_new, new, accepted, spent = _line_search(
+        update, slope, lbfgs_state = line_search.descent_direction(direction_fn, grad_z, lbfgs_state, z)
+        z_new, new, accepted, spent = line_search.backtrack(
             lambda z_: evaluate(x_ref + jnp.einsum("bnm,bm->bn", precondition, z_)),
-            z, update, slope, point, inner_active, options)
+            z, update, slope, point, inner_active, options.armijo, options.max_backtracks)
         gradients += spent
         frozen = jnp.asarray(~inner_active)
-        z = _where(frozen, z, z_new)
-        point = jax.tree.map(lambda old, new_: _where(frozen, old, new_), point, new)
+        z = line_search.where(frozen, z, z_new)
+        point = jax.tree.map(lambda old, new_: line_search.where(frozen, old, new_), point, new)
         grad_z = jnp.einsum("bnm,bn->bm", precondition, point.grad)
         x = x_ref + jnp.einsum("bnm,bm->bn", precondition, z)
         gradient_norm = np.asarray(jnp.max(jnp.abs(point.grad), axis=-1) / jnp.maximum(1.0, jnp.abs(point.f)))
@@ -389,7 +181,7 @@ def _update_multipliers(state: _OuterState, gradient_norm: np.ndarray, options: 
     Practical Augmented Lagrangian Methods, 2014): a strictly feasible inequality with a positive
     multiplier is not converged. Returns the new state and the progress measure (B,)."""
     h, g, lam_in, rho, active = state.point.h, state.point.g, state.lam_in, state.rho, state.active
-    measure = np.asarray(_violation(h, jnp.abs(jnp.maximum(g, -lam_in / rho[:, None]))))
+    measure = np.asarray(nlp.violation(h, jnp.abs(jnp.maximum(g, -lam_in / rho[:, None]))))
     act = jnp.asarray(active)[:, None]
     lam_eq = jnp.where(act, state.lam_eq + rho[:, None] * h, state.lam_eq)
     lam_in = jnp.where(act, jnp.maximum(0.0, lam_in + rho[:, None] * g), lam_in)
@@ -423,11 +215,11 @@ def _classify(state: _OuterState, measure: np.ndarray, violation: np.ndarray, op
     rho = np.asarray(state.rho)
     for b in np.flatnonzero(active):
         if not finite[b]:
-            status[b], active[b] = DIVERGED, False
+            status[b], active[b] = nlp.DIVERGED, False
         elif measure[b] <= options.tolerance and (
                 state.stationarity[b] <= options.stationarity
                 or (options.acceptable_change > 0 and settled[b] >= options.acceptable_iterations)):
-            status[b], active[b] = CONVERGED, False
+            status[b], active[b] = nlp.CONVERGED, False
         elif rho[b] >= options.penalty_max and violation[b] > options.tolerance:
             at_cap[b] += 1
             # Penalty at its cap and the violation no longer falling: no feasible point nearby.
@@ -440,9 +232,26 @@ def _classify(state: _OuterState, measure: np.ndarray, violation: np.ndarray, op
                                previous_cost=np.where(state.active, cost, state.previous_cost))
 
 
-def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = SolverOptions(),
+def _initial_state(problem: nlp.ConstrainedProblem, compiled: CompiledProblem, x, params,
+                   options: SolverOptions) -> _OuterState:
+    """Every problem active at x (B, n) with zero multipliers and the initial penalty."""
+    batch = x.shape[0]
+    rho = jnp.full((batch,), options.penalty_initial)
+    _, h_shape, g_shape = jax.eval_shape(problem.evaluate, x[0], jax.tree.map(lambda a: a[0], params))
+    lam_eq, lam_in = jnp.zeros((batch, h_shape.shape[0])), jnp.zeros((batch, g_shape.shape[0]))
+    point = line_search.evaluate(compiled.value_and_grad, x, params, lam_eq, lam_in, rho)
+    return _OuterState(
+        x=x, point=point, lam_eq=lam_eq, lam_in=lam_in, rho=rho, active=np.ones(batch, dtype=bool),
+        status=(nlp.ITERATION_LIMIT,) * batch, outer_iterations=np.zeros(batch, dtype=int),
+        gradients=np.ones(batch, dtype=int), previous_violation=np.asarray(nlp.violation(point.h, point.g)),
+        stationarity=np.full(batch, np.inf), inner_tolerance=np.full(batch, 1.0),
+        at_cap=np.zeros(batch, dtype=int), settled=np.zeros(batch, dtype=int),
+        previous_cost=np.full(batch, np.nan), best_violation=np.full(batch, np.inf))
+
+
+def solve(problem: nlp.ConstrainedProblem, x0, params, options: SolverOptions = SolverOptions(),
           compiled: CompiledProblem | None = None,
-          progress: Callable[[int, dict], None] | None = None) -> SolveResult:
+          progress: Callable[[int, dict], None] | None = None) -> nlp.SolveResult:
     """Solves a batch of problems: outer iterations of an inner solve (:func:`_inner_solve`), the
     multiplier update (:func:`_update_multipliers`) and the status (:func:`_classify`) over a frozen
     :class:`_OuterState`.
@@ -467,25 +276,16 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
     lbfgs = (jax.jit(jax.vmap(optimiser.init)), jax.jit(jax.vmap(lambda g, s, x_: optimiser.update(g, s, x_))))
     identity = jnp.broadcast_to(jnp.eye(size, dtype=x.dtype), (batch, size, size))
 
-    rho = jnp.full((batch,), options.penalty_initial)
-    _, h_shape, g_shape = jax.eval_shape(problem.evaluate, x[0], jax.tree.map(lambda a: a[0], params))
-    lam_eq, lam_in = jnp.zeros((batch, h_shape.shape[0])), jnp.zeros((batch, g_shape.shape[0]))
-    point = _evaluate(compiled.value_and_grad, x, params, lam_eq, lam_in, rho)
-    state = _OuterState(
-        x=x, point=point, lam_eq=lam_eq, lam_in=lam_in, rho=rho, active=np.ones(batch, dtype=bool),
-        status=(ITERATION_LIMIT,) * batch, outer_iterations=np.zeros(batch, dtype=int),
-        gradients=np.ones(batch, dtype=int), previous_violation=np.asarray(_violation(point.h, point.g)),
-        stationarity=np.full(batch, np.inf), inner_tolerance=np.full(batch, 1.0),
-        at_cap=np.zeros(batch, dtype=int), settled=np.zeros(batch, dtype=int),
-        previous_cost=np.full(batch, np.nan), best_violation=np.full(batch, np.inf))
+    state = _initial_state(problem, compiled, x, params, options)
     history = []
     for outer in range(options.max_outer):
         if outer:  # the multipliers or the penalty changed: a new inner objective
             state = dataclasses.replace(
-                state, point=_evaluate(compiled.value_and_grad, state.x, params, state.lam_eq, state.lam_in, state.rho),
+                state, point=line_search.evaluate(compiled.value_and_grad, state.x, params, state.lam_eq,
+                                                  state.lam_in, state.rho),
                 gradients=state.gradients + state.active)
         state, gradient_norm = _inner_solve(state, params, compiled, lbfgs, options, identity)
-        violation = np.asarray(_violation(state.point.h, state.point.g))
+        violation = np.asarray(nlp.violation(state.point.h, state.point.g))
         state, measure = _update_multipliers(state, gradient_norm, options)
         row = {"cost": np.asarray(state.point.f), "violation": violation, "penalty": np.asarray(state.rho),
                "gradients": state.gradients.copy(), "stationarity": state.stationarity.copy(),
@@ -500,34 +300,16 @@ def solve(problem: ConstrainedProblem, x0, params, options: SolverOptions = Solv
               if state.active[b] and float(state.rho[b]) >= options.penalty_max
               and state.previous_violation[b] > options.tolerance else state.status[b] for b in range(batch)]
     h, g = state.point.h, state.point.g
-    return SolveResult(x=np.asarray(state.x), cost=np.asarray(state.point.f), equalities=np.asarray(h),
-                       inequalities=np.asarray(g), violation=np.asarray(_violation(h, g)),
-                       stationarity=state.stationarity, status=status, outer_iterations=state.outer_iterations,
-                       gradients=state.gradients, wall_time_s=time.perf_counter() - started, history=history,
-                       multipliers_eq=np.asarray(state.lam_eq), multipliers_in=np.asarray(state.lam_in))
+    return nlp.SolveResult(x=np.asarray(state.x), cost=np.asarray(state.point.f), equalities=np.asarray(h),
+                           inequalities=np.asarray(g), violation=np.asarray(nlp.violation(h, g)),
+                           stationarity=state.stationarity, status=status, outer_iterations=state.outer_iterations,
+                           gradients=state.gradients, wall_time_s=time.perf_counter() - started, history=history,
+                           multipliers_eq=np.asarray(state.lam_eq), multipliers_in=np.asarray(state.lam_in))
 
 
 def _at_cap(violation: float, options: SolverOptions) -> str:
-    """The status of a problem left infeasible at the penalty cap: :data:`INFEASIBLE` when clearly
-    so, :data:`STALLED` when the violation is small enough that a better inner solver might close it."""
-    return INFEASIBLE if violation > options.infeasible_above else STALLED
+    """The status of a problem left infeasible at the penalty cap: :data:`nlp.INFEASIBLE` when clearly
+    so, :data:`nlp.STALLED` when the violation is small enough that a better inner solver might close it."""
+    return nlp.INFEASIBLE if violation > options.infeasible_above else nlp.STALLED
 
 
-def optimal_value_gradient(problem: ConstrainedProblem, parameters_to_params: Callable) -> Callable:
-    """Gradient of the optimal value f*(p) with respect to problem parameters, by the envelope theorem.
-
-    At a KKT point x*(p) with multipliers (lam_eq, lam_in), strict complementarity and linearly
-    independent active constraints, d f*/d theta = d/d theta [f + lam_eq . h + lam_in . g] at fixed
-    x* and multipliers (Fiacco, Introduction to Sensitivity and Stability Analysis in Nonlinear
-    Programming, 1983, Thm. 3.4.1; Nocedal & Wright Sec. 12.8 for the multipliers as sensitivities).
-    One gradient of the Lagrangian: no differentiation through the solver's iterations.
-
-    Args:
-      problem: as solved.
-      parameters_to_params: theta -> the solver's per-problem ``params`` (traceable).
-    Returns a jitted, vmapped ``(theta, x, lam_eq, lam_in) -> d f*/d theta`` (same pytree as theta).
-    """
-    def lagrangian(theta, x, lam_eq, lam_in):
-        f, h, g = problem.evaluate(x, parameters_to_params(theta))
-        return f + lam_eq @ h + lam_in @ g
-    return jax.jit(jax.vmap(jax.grad(lagrangian)))

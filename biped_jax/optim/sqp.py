@@ -1,5 +1,5 @@
 """Sequential quadratic programming (SciPy's SLSQP) on a
-:class:`~biped_jax.optim.augmented_lagrangian.ConstrainedProblem`.
+:class:`~biped_jax.optim.nlp.ConstrainedProblem`.
 
 The batched augmented Lagrangian (:mod:`biped_jax.optim.augmented_lagrangian`) is cheap per iteration and
 vmaps over designs, but on the power-limited gait its penalty runs to the cap and its inner L-BFGS
@@ -12,16 +12,15 @@ curvature of the Lagrangian, not of a penalty.
 SLSQP (Kraft, A software package for sequential quadratic programming, DFVLR-FB 88-28, 1988) runs one
 problem at a time on the CPU; what it calls is compiled once per problem shape: the value (f, h, g),
 and its derivatives by central differences, 2C + 1 evaluations in one vmapped call for C colours of
-columns (:class:`CompiledSQP`; C = n without colouring) (forward-mode
-autodiff through a long rollout costs minutes to compile on a small CPU). Forward differences (about
+columns (:mod:`biped_jax.optim.coloured`; C = n without colouring). Forward differences (about
 7 correct digits) were measured too coarse: from the same M2 start they led SLSQP into the worse
-basin (J = 4.146) and never let it terminate; central ones are good to about 10 digits.
+basin (J = 4.146) and never let it terminate. The smallest limit of a problem is minimised the same
+way (:mod:`biped_jax.optim.limit_minimisation`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from typing import Callable
 
@@ -30,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import minimize
 
-from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import coloured, nlp
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +60,7 @@ class SQPOptions:
         iterations at the 1e-5 level, and its multipliers there leave |grad L| at 1e-3 to 1e-2; the
         stationarity is still reported). 0 disables it.
       sparse: colour the columns of the central differences by the problem's sparsity
-        (:class:`CompiledSQP`); False differences every column alone (2n + 1 rollouts).
+        (:class:`~biped_jax.optim.coloured.CompiledSQP`); False differences every column alone (2n + 1 rollouts).
       working_margin: SLSQP sees only the inequality rows within this margin of active (g > -margin,
         scaled units) at its start; where it ends with a row it did not see at g > -tolerance, the
         rows within the margin there join and it goes on from that point (:func:`working_rows`).
@@ -79,225 +78,13 @@ class SQPOptions:
     stationarity: float = 1e-3
     max_iterations: int = 800
     accuracy: float = 1e-10
-    step: float = 1e-5
+    step: float = coloured.STEP
     infeasible_above: float = 1e-3
     precondition: float | None = 1e-6
     acceptable_change: float = 1e-6
     acceptable_iterations: int = 10
     sparse: bool = True
     working_margin: float | None = None
-
-
-#: Colour counts are padded to a multiple of this, so that problems of one shape whose sparsity
-#: patterns differ slightly still share one compiled derivative program.
-COLOUR_PADDING = 8
-
-
-class CompiledSQP:
-    """The compiled functions of one problem (one problem at a time, no batch dimension):
-    ``value(x, params) -> (f, h, g)`` and ``derivatives(x, params) -> (f, h, g, grad f, jac h, jac g,
-    jac r)``, jac r the residuals' Jacobian (an empty (0, n) array for a problem without residuals).
-
-    The derivatives are central differences. With ``sparse`` (the default), columns that reach no
-    output in common are perturbed together (Curtis, Powell and Reid, On the estimation of sparse
-    Jacobian matrices, IMA J. Appl. Math. 13, 1974; SciPy's ``approx_derivative`` with ``sparsity``
-    does the same): the gait's outputs are local in time (a B-spline control point moves four knot
-    spans, a shooting node one segment), so its 200 columns in 32 knot spans need 27 colours (padded
-    to 32: 65 rollouts instead of 401; 0.59 s -> about 0.08 s a Jacobian on the 2-core CPU). Without
-    ``sparse`` every column is a colour of its own (the dense differences). Every row is still
-    differenced along one column only, so the result equals the dense differences to rounding. The
-    pattern (which outputs each column reaches) is probed once, at the first point asked for, by
-    perturbing each column alone in the single-point program (:func:`sparsity_pattern`); it is a
-    property of the problem's structure, not of the point (the gait has no branches that switch a
-    dependence on or off; a test compares with dense differences at other points and designs). The
-    objective's row is left out when it is a sum of squared residuals: grad f = 2 J_r^T r.
-    """
-
-    def __init__(self, problem: al.ConstrainedProblem, step: float = SQPOptions.step, sparse: bool = True):
-        self.problem, self.step, self.sparse = problem, step, sparse
-        self._outputs = jax.jit(functools.partial(_outputs, problem))
-        self._coloured = jax.jit(functools.partial(_coloured_derivatives, problem, step))
-        self.colouring: tuple | None = None  # (directions (C, n), colour of each column (n,), pattern (m, n))
-
-    def value(self, x, params):
-        """(f, h, g) at x."""
-        return self._outputs(x, params)[:3]
-
-    @property
-    def rollouts(self) -> int | None:
-        """Rollouts per Jacobian, 2C + 1 (None before the first one fixed the colouring)."""
-        return None if self.colouring is None else 2 * self.colouring[0].shape[0] + 1
-
-    def derivatives(self, x, params):
-        """(f, h, g, grad f, jac h, jac g, jac r) at x by central differences."""
-        if self.colouring is None:
-            x = np.asarray(x, dtype=float)
-            has_residuals = self.problem.residuals is not None
-            if self.sparse:
-                pattern = sparsity_pattern(self._outputs, x, params, has_residuals)
-                colour = column_colours(pattern)
-                count = -(-(colour.max(initial=-1) + 1) // COLOUR_PADDING) * COLOUR_PADDING
-            else:  # every column alone
-                rows = _pattern_rows(self._outputs(jnp.asarray(x), params), has_residuals).size
-                pattern, colour, count = np.ones((rows, x.size), bool), np.arange(x.size), x.size
-            directions = (np.arange(count)[:, None] == colour[None]).astype(float)
-            self.colouring = (jnp.asarray(directions), jnp.asarray(colour), jnp.asarray(pattern))
-        return self._coloured(x, params, *self.colouring)
-
-    def always_seen(self, x, params) -> np.ndarray | None:
-        """Inequality rows a working set (:attr:`SQPOptions.working_margin`) holds whatever their
-        value at x, bool (m_g,); None: none beyond the margin's."""
-        return None
-
-    def lifted(self, x, f, h, g, tolerance: float):
-        """A feasible point next to an infeasible iterate x, as (x', f'); None: none known (see
-        :meth:`LimitMinimisation.lifted`)."""
-        return None
-
-
-class LimitMinimisation:
-    """SLSQP's value and derivatives of "minimise the limit itself": on (x, t), minimise t subject to
-    a compiled problem's constraints with its limit parameter scaled by t, built on that problem's
-    compiled functions (no program of its own: the same shapes, the same compiled rollouts).
-
-    ``at_limit(params, t)`` returns the problem's parameters with the limit scaled by the Python float
-    t; the limit must enter the constraints linearly (the gait's scaled power constraint
-    (|qdot u| - t M_W0) / P_s does), so that the column of t is exactly g(x, t + 1) - g(x, t): one
-    rollout beside the 2C + 1 of the problem's Jacobian."""
-
-    def __init__(self, compiled: CompiledSQP, at_limit: Callable):
-        self.compiled, self.at_limit = compiled, at_limit
-        self._column = None  # d g / d t of the last Jacobian (constant for a limit entering linearly)
-
-    def _split(self, x_limit, params):
-        x_limit = np.asarray(x_limit, dtype=float)
-        t = float(x_limit[-1])
-        return jnp.asarray(x_limit[:-1]), t, self.at_limit(params, t)
-
-    def value(self, x_limit, params):
-        """(t, h, g) at (x, t)."""
-        x, t, scaled = self._split(x_limit, params)
-        _, h, g = self.compiled.value(x, scaled)
-        return t, h, g
-
-    @property
-    def rollouts(self) -> int | None:
-        """Rollouts per Jacobian: the problem's and one for the limit's column."""
-        inner = self.compiled.rollouts
-        return None if inner is None else inner + 1
-
-    def derivatives(self, x_limit, params):
-        """(f, h, g, grad f, jac h, jac g, jac r) at (x, t); no residuals (jac r is (0, n + 1))."""
-        x, t, scaled = self._split(x_limit, params)
-        _, h, g, _, jac_h, jac_g, _ = map(np.asarray, self.compiled.derivatives(x, scaled))
-        column = np.asarray(self.compiled.value(x, self.at_limit(params, t + 1.0))[2]) - g
-        self._column = column
-        n = x.size + 1
-        return (t, h, g, np.append(np.zeros(x.size), 1.0),
-                np.concatenate([jac_h, np.zeros((h.size, 1))], axis=1),
-                np.concatenate([jac_g, column[:, None]], axis=1), np.zeros((0, n)))
-
-    def always_seen(self, x_limit, params) -> np.ndarray:
-        """The rows on the limit, bool (m_g,): however far from active at the start, lowering the
-        limit brings them there (g(x, t + 1) - g(x, t) != 0)."""
-        x, t, scaled = self._split(x_limit, params)
-        g = np.asarray(self.compiled.value(x, scaled)[2])
-        return np.asarray(self.compiled.value(x, self.at_limit(params, t + 1.0))[2]) != g
-
-    def lifted(self, x_limit, f, h, g, tolerance: float):
-        """(x, t', f') with t raised just enough that the constraints on the limit hold (to rounding)
-        at an iterate that keeps every other constraint within ``tolerance``; None otherwise (or
-        before the first Jacobian). The gait at an infeasible SLSQP iterate is still one that walks
-        at a somewhat higher limit: where SLSQP stalls, the best of these is the answer so far."""
-        column = self._column
-        if column is None or np.max(np.abs(h), initial=0.0) > tolerance:
-            return None
-        on_limit = column < -1e-9 * np.max(np.abs(column))
-        if np.max(g[~on_limit], initial=0.0) > tolerance:
-            return None
-        raise_by = max(0.0, float(np.max(g[on_limit] / -column[on_limit], initial=0.0)))
-        lifted = np.array(x_limit, dtype=float)
-        lifted[-1] += raise_by
-        return lifted, f + raise_by
-
-
-def compile_problem(problem: al.ConstrainedProblem, step: float = SQPOptions.step,
-                    sparse: bool = True) -> CompiledSQP:
-    """Value and central-difference derivatives of ``problem``, compiled on first call (see
-    :class:`CompiledSQP`)."""
-    return CompiledSQP(problem, step, sparse)
-
-
-def _outputs(problem: al.ConstrainedProblem, x, params):
-    """(f, h, g, r) at one point; r empty for a problem without residuals."""
-    if problem.residuals is None:
-        f, h, g = problem.evaluate(x, params)
-        return f, h, g, jnp.zeros(0, x.dtype)
-    r, h, g = problem.residuals(x, params)
-    return r @ r, h, g, r
-
-
-def _steps(step, x):
-    return step * jnp.maximum(1.0, jnp.abs(x))
-
-
-def _coloured_derivatives(problem, step, x, params, directions, colour, pattern):
-    """One vmapped rollout of the 2C + 1 points x, x +- (step_i over the columns i of colour c);
-    row k of column i is read from colour(i)'s difference where the pattern says k depends on i.
-    ``pattern`` rows: r, then h, then g, then f (f's row only for a problem without residuals)."""
-    steps = _steps(step, x)
-    points = jnp.concatenate([x[None], x[None] + directions * steps, x[None] - directions * steps])
-    f, h, g, r = jax.vmap(functools.partial(_outputs, problem), in_axes=(0, None))(points, params)
-    count = directions.shape[0]
-    with_objective = problem.residuals is None
-    rows = jnp.concatenate([r, h, g] + ([f[:, None]] if with_objective else []), axis=1)  # (2C + 1, m)
-    differences = (rows[1:count + 1] - rows[count + 1:])                                   # (C, m)
-    jacobian = jnp.where(pattern, differences[colour].T / (2 * steps), 0.0)               # (m, n)
-    jac_r, jac_h, jac_g = jnp.split(jacobian[:r.shape[1] + h.shape[1] + g.shape[1]],
-                                    [r.shape[1], r.shape[1] + h.shape[1]])
-    grad = jacobian[-1] if with_objective else 2 * jac_r.T @ r[0]
-    return f[0], h[0], g[0], grad, jac_h, jac_g, jac_r
-
-
-def sparsity_pattern(outputs: Callable, x: np.ndarray, params, has_residuals: bool,
-                     probe: float = 1e-3) -> np.ndarray:
-    """Which outputs each column of x reaches, shape (m, n) bool, rows as in the coloured derivatives
-    (r, h, g, then f when there are no residuals): column i perturbed alone by ``probe`` max(1, |x_i|)
-    at x and at a second point (x moved by a random 10 ``probe`` in every column, so that a dependence
-    whose slope vanishes at x still shows), in the compiled single-point program; an output that
-    changes at all, bit for bit, depends on the column."""
-    def rows(point):
-        return _pattern_rows(outputs(jnp.asarray(point), params), has_residuals)
-    scale = probe * np.maximum(1.0, np.abs(x))
-    second = x + 10 * scale * np.random.default_rng(0).uniform(-1, 1, x.size)
-    pattern = None
-    for base in (x, second):
-        centre = rows(base)
-        columns = [rows(base + scale * (np.arange(x.size) == i)) != centre for i in range(x.size)]
-        found = np.stack(columns, axis=1)
-        pattern = found if pattern is None else pattern | found
-    return pattern
-
-
-def _pattern_rows(outputs, has_residuals: bool) -> np.ndarray:
-    """The outputs (f, h, g, r) as one vector in the pattern's row order."""
-    f, h, g, r = map(np.asarray, outputs)
-    return np.concatenate([r, h, g] + ([np.atleast_1d(f)] if not has_residuals else []))
-
-
-def column_colours(pattern: np.ndarray) -> np.ndarray:
-    """Greedy colouring of the columns, densest first: columns of one colour reach no row in common.
-    Returns each column's colour, shape (n,) int."""
-    colour = np.full(pattern.shape[1], -1)
-    reached: list[np.ndarray] = []  # per colour, the rows its columns reach
-    for column in np.argsort(-pattern.sum(axis=0), kind="stable"):
-        rows = pattern[:, column]
-        free = next((c for c, used in enumerate(reached) if not (used & rows).any()), len(reached))
-        if free == len(reached):
-            reached.append(np.zeros_like(rows))
-        reached[free] |= rows
-        colour[column] = free
-    return colour
 
 
 def _to_numpy(a):
@@ -320,11 +107,15 @@ def _last_call(function: Callable, on_call: Callable) -> Callable:
     return remembered
 
 
-def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOptions,
+def _solve_one(compiled: coloured.CompiledSQP, x0: np.ndarray, params, options: SQPOptions,
                progress: Callable[[int, float, float], None] | None, scale: np.ndarray | None = None):
     """SLSQP on one problem; returns (x, f, h, g, status, stationarity, iterations, evaluations,
     lam_eq, lam_in, trace) with our sign conventions (f + lam_eq.h + lam_in.g, lam_in >= 0); trace
-    holds (f, scaled violation, evaluations so far) at the start and after every iteration."""
+    holds (f, scaled violation, evaluations so far) at the start and after every iteration.
+
+    One function of about 70 lines on purpose: SLSQP's callback, the working-set rounds and the final
+    classification share the evaluation count, the trace and the best feasible iterate, which split
+    further would travel as mutable cells between functions."""
     counts = {"evaluations": 0}
     value = _last_call(lambda x: tuple(map(_to_numpy, compiled.value(jnp.asarray(x), params))),
                        lambda x: counts.update(evaluations=counts["evaluations"] + 1))
@@ -365,15 +156,9 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
     rows = working_rows(g0, options.working_margin, always)
     z = np.zeros_like(x0) if scale is not None else x0
     while True:
-        constraints = []
-        if h0.size:
-            constraints.append({"type": "eq", "fun": lambda z: value(to_x(z))[1],
-                                "jac": lambda z: chain(derivatives(to_x(z))[4])})
-        if rows.size:
-            constraints.append({"type": "ineq", "fun": lambda z, rows=rows: -value(to_x(z))[2][rows],
-                                "jac": lambda z, rows=rows: -chain(derivatives(to_x(z))[5][rows])})
         result = minimize(lambda z: value(to_x(z))[0], z, jac=lambda z: chain(derivatives(to_x(z))[3]),
-                          constraints=constraints, method="SLSQP", callback=callback,
+                          constraints=_constraints(value, derivatives, to_x, chain, h0.size, rows),
+                          method="SLSQP", callback=callback,
                           options={"maxiter": options.max_iterations - iterations[0], "ftol": options.accuracy})
         z = np.asarray(result.x)
         unseen = np.ones(g0.size, bool)
@@ -389,25 +174,50 @@ def _solve_one(compiled: CompiledSQP, x0: np.ndarray, params, options: SQPOption
     if fallback:
         x = best[0][1]
     f, h, g, grad, jac_h, jac_g, _ = derivatives(x)
-    multipliers = np.asarray(getattr(result, "multipliers", np.zeros(h.size + rows.size)))
-    lam_eq, lam_in = -multipliers[:h.size], np.zeros(g.size)
-    lam_in[rows] = np.maximum(multipliers[h.size:], 0.0)  # zero on the rows SLSQP did not see
+    lam_eq, lam_in = _multipliers(result, h.size, g.size, rows)
     stationarity = float(np.max(np.abs(grad + jac_h.T @ lam_eq + jac_g.T @ lam_in), initial=0.0)
                          / max(1.0, abs(float(f))))
-    violation = _scaled_violation(h, g)
     finite = bool(np.all(np.isfinite(x)) and np.isfinite(f))
-    if not finite:
-        status = al.DIVERGED
-    elif not fallback and violation <= options.tolerance and (
-            result.status == 0 or stationarity <= options.stationarity or acceptable[0]):
-        status = al.CONVERGED
-    elif result.status == 9:  # iteration limit
-        status = al.ITERATION_LIMIT
-    elif violation <= options.tolerance:
-        status = al.ITERATION_LIMIT  # feasible but not stationary: stopped short of an optimum
-    else:
-        status = al.INFEASIBLE if violation > options.infeasible_above else al.STALLED
+    status = _status(finite, fallback, _scaled_violation(h, g), result.status, stationarity, acceptable[0], options)
     return x, f, h, g, status, stationarity, iterations[0], counts["evaluations"], lam_eq, lam_in, trace
+
+
+def _constraints(value: Callable, derivatives: Callable, to_x: Callable, chain: Callable, equalities: int,
+                 rows: np.ndarray) -> list[dict]:
+    """SLSQP's constraint dicts in z: every equality, and the inequality ``rows`` of the working set
+    (SciPy's sign: fun >= 0)."""
+    constraints = []
+    if equalities:
+        constraints.append({"type": "eq", "fun": lambda z: value(to_x(z))[1],
+                            "jac": lambda z: chain(derivatives(to_x(z))[4])})
+    if rows.size:
+        constraints.append({"type": "ineq", "fun": lambda z: -value(to_x(z))[2][rows],
+                            "jac": lambda z: -chain(derivatives(to_x(z))[5][rows])})
+    return constraints
+
+
+def _multipliers(result, equalities: int, inequalities: int, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SLSQP's multipliers in our signs (f + lam_eq.h + lam_in.g, lam_in >= 0), shapes (m_h,), (m_g,);
+    zero on the inequality rows SLSQP did not see."""
+    multipliers = np.asarray(getattr(result, "multipliers", np.zeros(equalities + rows.size)))
+    lam_in = np.zeros(inequalities)
+    lam_in[rows] = np.maximum(multipliers[equalities:], 0.0)
+    return -multipliers[:equalities], lam_in
+
+
+def _status(finite: bool, fallback: bool, violation: float, slsqp_status: int, stationarity: float,
+            acceptable: bool, options: SQPOptions) -> str:
+    """The outcome of one SLSQP solve: diverged (non-finite), converged (feasible at SLSQP's own end,
+    stationary, or acceptable; never the feasible fallback iterate), iteration limit (SLSQP's cap, or
+    feasible and not stationary), else infeasible or stalled by the size of the violation."""
+    if not finite:
+        return nlp.DIVERGED
+    if not fallback and violation <= options.tolerance and (
+            slsqp_status == 0 or stationarity <= options.stationarity or acceptable):
+        return nlp.CONVERGED
+    if slsqp_status == 9 or violation <= options.tolerance:  # SLSQP's iteration limit, or feasible but
+        return nlp.ITERATION_LIMIT                            # stopped short of an optimum
+    return nlp.INFEASIBLE if violation > options.infeasible_above else nlp.STALLED
 
 
 def working_rows(g: np.ndarray, margin: float | None, always: np.ndarray | None = None) -> np.ndarray:
@@ -454,10 +264,10 @@ def _scaled_violation(h, g) -> float:
     return float(max(np.max(np.abs(h), initial=0.0), np.max(g, initial=0.0), 0.0))
 
 
-def solve(problem: al.ConstrainedProblem, x0, params, options: SQPOptions = SQPOptions(),
-          compiled: CompiledSQP | None = None,
+def solve(problem: nlp.ConstrainedProblem, x0, params, options: SQPOptions = SQPOptions(),
+          compiled: coloured.CompiledSQP | None = None,
           progress: Callable[[int, int, float, float], None] | None = None,
-          scales: np.ndarray | None = None) -> al.SolveResult:
+          scales: np.ndarray | None = None) -> nlp.SolveResult:
     """Solves a batch of problems one after another with SLSQP.
 
     Args:
@@ -471,11 +281,11 @@ def solve(problem: al.ConstrainedProblem, x0, params, options: SQPOptions = SQPO
         instead of the Gauss-Newton one of ``options.precondition`` (for an objective without
         residuals whose scale the caller knows).
 
-    Returns an :class:`~biped_jax.optim.augmented_lagrangian.SolveResult` (``outer_iterations`` counts SLSQP
+    Returns an :class:`~biped_jax.optim.nlp.SolveResult` (``outer_iterations`` counts SLSQP
     iterations, ``gradients`` counts function evaluations, ``history`` one row per SLSQP iteration).
     """
     started = time.perf_counter()
-    compiled = compiled or compile_problem(problem, options.step, options.sparse)
+    compiled = compiled or coloured.compile_problem(problem, options.step, options.sparse)
     x0 = np.asarray(x0, dtype=float)
     rows = []
     for b in range(x0.shape[0]):
@@ -487,7 +297,7 @@ def solve(problem: al.ConstrainedProblem, x0, params, options: SQPOptions = SQPO
     violation = np.array([_scaled_violation(a, c) for a, c in zip(h, g)])
     cost = np.array(f, dtype=float)
     history = _history(traces, np.stack(x), np.array(stationarity))
-    return al.SolveResult(x=np.stack(x), cost=cost, equalities=np.stack(h), inequalities=np.stack(g),
+    return nlp.SolveResult(x=np.stack(x), cost=cost, equalities=np.stack(h), inequalities=np.stack(g),
                           violation=violation, stationarity=np.array(stationarity), status=list(status),
                           outer_iterations=np.array(iterations), gradients=np.array(evaluations),
                           wall_time_s=time.perf_counter() - started, history=history,

@@ -20,31 +20,8 @@ def live_progress(quiet_prefixes: tuple[str, ...] = ()):
     does not start with one of ``quiet_prefixes`` (frequent per-iteration lines) is logged as well.
     Program names come from JAX's compile log (:func:`biped_jax.report.compile_profile.profile_compiles`,
     which the command line runs around every command)."""
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        ProgressColumn,
-        SpinnerColumn,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-    from rich.text import Text
-
-    class StageOnly(ProgressColumn):  # a column shown on the stages' bars, not on the status line
-        def __init__(self, column):
-            self.column = column
-            super().__init__()
-
-        def render(self, task):
-            return self.column.render(task) if task.total is not None else Text("")
-
     started = time.perf_counter()
-    # the estimate of time left: the pace over the stage so far (problems take minutes, not seconds)
-    bars = Progress(SpinnerColumn(), TextColumn("{task.description}"),
-                    *map(StageOnly, (BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"),
-                                     TimeRemainingColumn())), console=console, speed_estimate_period=24 * 3600.0)
+    bars = _stage_bars()
     status = bars.add_task("starting", total=None)
     stages: dict[str, int] = {}
     latest = ["starting"]
@@ -79,6 +56,35 @@ def live_progress(quiet_prefixes: tuple[str, ...] = ()):
             yield progress
     finally:
         listeners.remove(compiling)
+
+
+def _stage_bars():
+    """rich's Progress with a status line (no total: description only) and stage bars (bar, done of
+    all, elapsed, estimated time left)."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        ProgressColumn,
+        SpinnerColumn,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+    from rich.text import Text
+
+    class StageOnly(ProgressColumn):  # a column shown on the stages' bars, not on the status line
+        def __init__(self, column):
+            self.column = column
+            super().__init__()
+
+        def render(self, task):
+            return self.column.render(task) if task.total is not None else Text("")
+
+    # the estimate of time left: the pace over the stage so far (problems take minutes, not seconds)
+    return Progress(SpinnerColumn(), TextColumn("{task.description}"),
+                    *map(StageOnly, (BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"),
+                                     TimeRemainingColumn())), console=console, speed_estimate_period=24 * 3600.0)
 
 
 #: Who hears of compilations (the live display while one is open): see :func:`compile_listener`.

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from biped_jax.robots.planar_biped import PLANAR_ACTUATED, PLANAR_DRIVE_MOUNTS, PLANAR_LINKS  # noqa: F401 (also read as design's)
+from biped_jax.robots.planar_biped import PLANAR_ACTUATED, PLANAR_DRIVE_MOUNTS, PLANAR_LINKS
 
 
 

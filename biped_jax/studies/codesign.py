@@ -22,7 +22,7 @@ from biped_jax.codesign import problem as codesign
 from biped_jax.drives import model as drives
 from biped_jax.gait import problem as gait
 from biped_jax.gait.solver import GAIT_SOLVER_OPTIONS, GaitSolver
-from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
 from biped_jax.report import outputs
 
 BATCH = 16
@@ -46,7 +46,7 @@ SPEED_GEARHEADS = ("GP32A-14", "GP32A-18", "GP32A-21", "GP32A-23", "GP32A-28", "
 
 
 def _converged(solution) -> bool:
-    return solution.status == al.CONVERGED
+    return solution.status == nlp.CONVERGED
 
 
 def power_law_exponent(mass, value) -> float:
@@ -78,7 +78,7 @@ def mass_scaling(solver: GaitSolver, say) -> dict:
     records = [codesign.design_record(d, s) for d, s in zip(designs, solutions)]
     fits = {}
     for speed in SPEEDS:
-        rows = [r for r in records if r["speed_mps"] == speed and r["status"] == al.CONVERGED]
+        rows = [r for r in records if r["speed_mps"] == speed and r["status"] == nlp.CONVERGED]
         mass = [r["total_mass_kg"] for r in rows]
         fits[f"{speed}"] = {
             "converged": len(rows),
@@ -146,7 +146,7 @@ def pareto(solver: GaitSolver, x_start, say) -> dict:
                                            x0=np.tile(x_start, (len(chunk), 1)), summary=say)
         records += [{"winding": w, "gearhead": g, **codesign.design_record(d, s)}
                     for (w, g), d, s in zip(chunk, designs, solutions)]
-    ok = [i for i, r in enumerate(records) if r["status"] == al.CONVERGED]
+    ok = [i for i, r in enumerate(records) if r["status"] == nlp.CONVERGED]
     front = pareto_front([(records[i]["total_mass_kg"], records[i]["joule_energy_per_metre_J_per_m"]) for i in ok])
     return {"designs": records, "pareto": [ok[i] for i in front]}
 
@@ -168,7 +168,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
                                       x0=np.stack([s.x for s in path.solutions]), summary=say)
     records = [{"gearheads": list(n), **codesign.design_record(d, s)}
                for n, d, s in zip(snapped_names, snapped, verified)]
-    ok = [i for i, r in enumerate(records) if r["status"] == al.CONVERGED]
+    ok = [i for i, r in enumerate(records) if r["status"] == nlp.CONVERGED]
     best = min(ok, key=lambda i: records[i]["joule_energy_J"]) if ok else None
     return {"path": {"ratios": path.ratios, "joule_J": path.joule, "status": path.status},
             "continuous": [{"ratio": np.asarray(d.ratio).tolist(), "status": s.status, "joule_energy_J": s.cost}

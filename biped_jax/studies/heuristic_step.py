@@ -5,6 +5,7 @@ A check of the hybrid step's physics from a plain controller, not an optimal gai
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -26,12 +27,16 @@ def step_report(mass_class: str, gait) -> tuple[dict, dict]:
     """Simulates one heuristic step of a mass class; returns (JSON-ready summary, arrays for plots)."""
     import jax
 
-    from biped_jax.dynamics import hybrid_step
+    from biped_jax.dynamics import hybrid_step, planar_chain
     from biped_jax.gait import heuristic_step
+    from biped_jax.robots import planar_biped
 
     biped = hybrid_step.load_planar_biped(mass_class)
+    # the closed-form chain (equal to MJX to rounding; the chain's structure is the same for every mass
+    # class, read here where the model is concrete); numpy from here: no op-by-op programs
+    chain = planar_chain.PlanarChain.from_model(biped.pinned)
     trajectory, dt, index, impact, foot, foot_velocity = jax.tree.map(np.asarray, jax.jit(
-        heuristic_step.simulate, static_argnums=1)(biped, gait))  # numpy from here: no op-by-op programs
+        functools.partial(heuristic_step.simulate, gait=gait, chain=chain))(biped))
     index, dt = int(index), float(dt)
     pinned = hybrid_step.with_timestep(biped.pinned, dt)
     end = index if index > 0 else len(trajectory.u)
@@ -45,7 +50,7 @@ def step_report(mass_class: str, gait) -> tuple[dict, dict]:
         "touched_down": index > 0,
         "finite": bool(np.all(np.isfinite(trajectory.q))),
         "cost_int_u2_N2m2s": float(np.sum(u**2) * dt),
-        "max_abs_torque_Nm": dict(zip(hybrid_step.ACTUATED, np.abs(u).max(axis=0).tolist())),
+        "max_abs_torque_Nm": dict(zip(planar_biped.ACTUATED, np.abs(u).max(axis=0).tolist())),
         "max_vertical_force_N": float(np.max(trajectory.ground_force[:end, 1])),
         "min_vertical_force_N": float(np.min(trajectory.ground_force[:end, 1])),
     }
@@ -73,7 +78,7 @@ def plot_steps(arrays: dict[str, dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from biped_jax.dynamics.hybrid_step import ACTUATED, PINNED_COORDINATES
+    from biped_jax.robots.planar_biped import ACTUATED, PINNED_COORDINATES
 
     figure, axes = plt.subplots(2, 2, figsize=(11, 7), constrained_layout=True)
     for (mass_class, a), style in zip(arrays.items(), ("-", "--")):

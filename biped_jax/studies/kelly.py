@@ -25,7 +25,7 @@ import numpy as np
 from biped_jax.gait import problem as gait
 from biped_jax.gait import report as gait_report
 from biped_jax.gait.solver import GaitSolution, GaitSolver
-from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
 from biped_jax.report import outputs
 from biped_jax.robots.specs import KELLY_BIPED
 
@@ -72,7 +72,7 @@ def solve_kelly(settings: gait.GaitSettings = KELLY_SETTINGS,
     model = kelly_model()
     names = [f"kelly (swing lift {lift})" for lift in START_LIFTS]
     solutions = solver.solve(names, [model] * len(START_LIFTS), x0=starts(model, settings), progress=progress)
-    return sorted(solutions, key=lambda s: (s.status != al.CONVERGED, s.cost))
+    return sorted(solutions, key=lambda s: (s.status != nlp.CONVERGED, s.cost))
 
 
 def refine(solution: GaitSolution, settings: gait.GaitSettings,

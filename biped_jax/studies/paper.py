@@ -4,6 +4,7 @@ smallest power limit at which each model still walks."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Callable
 
@@ -13,9 +14,10 @@ import numpy as np
 from biped_jax.drives import selection as drive_selection
 from biped_jax.gait import problem as gait
 from biped_jax.gait import report as gait_report
-from biped_jax.gait import solver as gait_solver
+from biped_jax.gait import multistart
+from biped_jax.gait import verdict
 from biped_jax.gait.solver import GaitSolution, GaitSolver
-from biped_jax.optim import augmented_lagrangian as al
+from biped_jax.optim import nlp
 from biped_jax.optim import sqp
 from biped_jax.report import outputs
 
@@ -60,7 +62,7 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
     "min_power_status": the gait's status at that limit, "min_power_cost": its J (not minimised),
     "min_power_gait": the :class:`GaitSolution`}.
     """
-    usable = [b for b, s in enumerate(solutions) if s.status == al.CONVERGED]
+    usable = [b for b, s in enumerate(solutions) if s.status == nlp.CONVERGED]
     found = {}
     if usable:
         rows = [solutions[b] for b in usable]
@@ -74,7 +76,7 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
             carried = np.stack([gait.project(s.x, solver.settings, coarse.settings, s.trajectory) for s in rows])
             first = coarse.minimise_power_limit(names, models, carried, progress=tagged("coarse space"))
             # from the coarse space's gait and limit (2 % above it: the carried gait is close, not equal)
-            carried_on = [c.max_violation <= gait_solver.VIOLATION_TOLERANCE for c in first]
+            carried_on = [c.max_violation <= verdict.VIOLATION_TOLERANCE for c in first]
             x0 = np.stack([gait.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
                            for c, s, ok in zip(first, rows, carried_on)])
             models = [dataclasses.replace(m, power_limit=jnp.asarray(1.02 * c.power_limit_W)) if ok else m
@@ -89,8 +91,8 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
                             "min_power_cost": None, "min_power_gait": None})
             continue
         minimum = found[b]
-        feasible = minimum.status in (al.CONVERGED, al.ITERATION_LIMIT) and minimum.refinement["passed"] \
-            and minimum.max_violation <= gait_solver.VIOLATION_TOLERANCE
+        feasible = minimum.status in (nlp.CONVERGED, nlp.ITERATION_LIMIT) and minimum.refinement["passed"] \
+            and minimum.max_violation <= verdict.VIOLATION_TOLERANCE
         records.append({"min_power_limit_W": minimum.power_limit_W if feasible else None,
                         "min_power_solve_grid_W": minimum.refinement["solve_grid_limit_W"],
                         "min_power_status": minimum.status, "min_power_cost": minimum.cost,
@@ -98,69 +100,8 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
     return records
 
 
-#: The continuation pipeline's space (:func:`solve_paper_models`; opt-in, not yet the study's default,
-#: see README "Continuation in the power limit"): 16 cubic knot spans, the stance angle shot in every
-#: span (multiple shooting).
-CONTINUATION_SETTINGS = gait.GaitSettings(segments=16)
-
-#: Its solver settings at the model's limit: the Gauss-Newton preconditioner refreshed every 10 L-BFGS
-#: iterations with the full Gauss-Newton step after each refresh, 80 iterations per inner problem, the
-#: penalty from 1e3 growing 3x at most per update, and IPOPT-like acceptable termination (feasible and J
-#: settled to 1e-4 over three multiplier updates).
-CONTINUATION_OPTIONS = dataclasses.replace(gait_solver.GAIT_SOLVER_OPTIONS, precondition_every=10, max_inner=80,
-                                           cap_first_step=False, max_outer=30, penalty_initial=1e3,
-                                           penalty_growth=3.0, acceptable_change=1e-4)
-
-#: Its start families: those landing on a flexed knee and the plain straight-stance one.
-CONTINUATION_FAMILIES = gait.IMPACT_FAMILIES + gait.START_FAMILIES[:1]
-
-#: The first stage's "no power limit", W (the power constraint is scaled by it: far out of reach).
-FREE_POWER_LIMIT = 1e4
-
-
-def solve_paper_models(solver: GaitSolver, families=CONTINUATION_FAMILIES, rows=PAPER_MODELS,
-                       progress: Callable[[str], None] | None = None) -> tuple[list[GaitSolution], list]:
-    """M1-M4 by continuation in the power limit (opt-in; measured in ``benchmarks/vs_collocation.py``):
-    every family without a power limit (one batch of all models per family, so one compiled program
-    serves every stage), the cheapest converged gait per model (else the least violated) then solved at
-    the model's limit with ``solver``'s options (:data:`CONTINUATION_OPTIONS` intended, in
-    :data:`CONTINUATION_SETTINGS`' space).
-
-    Returns the solutions at the paper's limits (each with ``starts``: every family's outcome without
-    the limit and the one carried on) and the free-stage solutions per family."""
-    say = progress or (lambda message: None)
-    names = [r.name for r in rows]
-    free_models = paper_gait_models(rows, [FREE_POWER_LIMIT] * len(rows))
-    free_solver = solver.with_options(penalty_initial=100.0, penalty_growth=10.0, max_inner=40, max_outer=20)
-    by_family = []
-    for k, family in enumerate(families):
-        x0 = jnp.stack([gait.initial_guess(m, solver.settings, solver.leg_length, family=family)
-                        for m in free_models])
-        by_family.append(free_solver.solve(names, free_models, x0=x0, progress=_iterations(
-            say, f"no power limit, start {k + 1}/{len(families)} ({family.name})", free_solver.options)))
-    chosen, spreads = [], []
-    for b in range(len(rows)):
-        group = [solutions[b] for solutions in by_family]
-        feasible = [s for s in group if s.status in (al.CONVERGED, gait_solver.GRID_DEPENDENT)]
-        best = min(feasible, key=lambda s: s.cost) if feasible else min(group, key=lambda s: s.max_violation)
-        chosen.append(best.x)
-        spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation,
-                         "power_limit_W": FREE_POWER_LIMIT, "carried_on": s is best}
-                        for f, s in zip(families, group)])
-    solutions = solver.solve(names, paper_gait_models(rows), x0=jnp.asarray(np.stack(chosen)),
-                             progress=_iterations(say, "at the paper's power limits", solver.options))
-    for solution, spread in zip(solutions, spreads):
-        solution.starts = spread
-    return solutions, by_family
-
-
 def _number(value, spec: str) -> str:
     return "-" if value is None else format(value, spec)
-
-
-def _iterations(say, label: str, options: al.SolverOptions):
-    return lambda i, row: say(f"{label}: outer iteration {i + 1}/{options.max_outer}, largest scaled violation "
-                              f"{np.max(row['violation']):.1e}, J = " + ", ".join(f"{c:.3f}" for c in row["cost"]))
 
 
 #: The study's reference space and grid: 48 cubic knot spans graded 0.5 towards the impacts, the stance
@@ -228,7 +169,7 @@ def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS, method: str = "s
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     fine = GaitSolver(settings)
     # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
-    coarse = GaitSolver(gait_solver.coarse_settings(settings), check_refinement=False)
+    coarse = GaitSolver(multistart.coarse_settings(settings), check_refinement=False)
     if method == "sqp":
         return StudySolvers(fine.using(SQP_OPTIONS), coarse.using(COARSE_SQP_OPTIONS),
                             fine.using(FINE_POWER_SQP_OPTIONS), coarse.using(POWER_SQP_OPTIONS), STUDY_FAMILIES)
@@ -256,25 +197,11 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     key = {"settings": dataclasses.asdict(settings), "method": method, "families": [f.name for f in families]}
     names = [r.name for r in PAPER_MODELS]
 
-    def report(label):
-        if method == "sqp":  # the stage's count: problems done (one SLSQP solve after another)
-            return lambda i, row: say(
-                f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at "
-                f"most {solver.options.max_iterations}, J = {row['cost'][0]:.4f}, scaled violation "
-                f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
-        return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {solver.options.max_outer}, "
-                                  f"largest scaled violation {np.max(row['violation']):.1e} (done below "
-                                  f"{solver.options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}",
-                                  task=(label, i + 1, solver.options.max_outer))
-
-    def done(label, result, solved=len):  # solved(result): how many problems the stage solved
-        count = solved(result)
-        say(f"{label}: done", task=(label, count, count))
-        return result
-
+    report = functools.partial(_stage_report, say, solver.options)
+    done = functools.partial(_done, say)
     say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
         f"spans), then the best in {settings.spans} spans ({'SLSQP' if method == 'sqp' else 'augmented Lagrangian'})")
-    solutions = outputs.stage(out, "paper_models", key, lambda: gait_solver.solve_multistart(
+    solutions = outputs.stage(out, "paper_models", key, lambda: multistart.solve_multistart(
         solver, names, paper_gait_models(PAPER_MODELS), families=families, coarse=coarse,
         progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row),
         finished=lambda part, count: say(f"M1-M4 {part}: done", task=(f"M1-M4 {part}", count, count))),
@@ -286,29 +213,63 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     # A gait feasible at 20 W is feasible at every looser limit: where it costs less than the solution
     # found at the paper's limit, that solution was a worse local optimum; restart from it. (Cheaper by
     # more than 1e-4 relative: a solve ended on acceptable termination is settled to about 1e-6-1e-5.)
-    better = [b for b, (s, t) in enumerate(zip(solutions, at_20)) if t.status == al.CONVERGED
+    better = [b for b, (s, t) in enumerate(zip(solutions, at_20)) if t.status == nlp.CONVERGED
               and s.power_limit_W >= 20.0 and t.cost < s.cost * (1 - 1e-4)]
     if better:
         say("restarting " + ", ".join(names[b] for b in better) + " from their cheaper 20 W gaits")
         starts = jnp.stack([jnp.asarray(at_20[b].x if b in better else s.x) for b, s in enumerate(solutions)])
         restarted = outputs.stage(out, "restart", key, lambda: done("restart", solver.solve(
             names, paper_gait_models(PAPER_MODELS), x0=starts, progress=report("restart"))), resume, say)
-        solutions = [r if (b in better and r.status == al.CONVERGED and r.cost < s.cost) else s
+        solutions = [r if (b in better and r.status == nlp.CONVERGED and r.cost < s.cost) else s
                      for b, (s, r) in enumerate(zip(solutions, restarted))]
     say("smallest feasible power limit per model")
-    def power_report(i, row):
+    minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
+        "smallest power limit (study space)", minimal_power_limits(
+            solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
+            progress=_power_report(say, solvers)),
+        lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
+
+    return _write_results(out, solutions, at_20, minimal, settings, solver, method, say)
+
+
+def _stage_report(say: Callable[..., None], options, label: str) -> Callable[[int, dict], None]:
+    """A stage's progress line per iteration; its count: problems done for SLSQP (one solve after
+    another), outer iterations for the batched augmented Lagrangian."""
+    if isinstance(options, sqp.SQPOptions):
+        return lambda i, row: say(
+            f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at "
+            f"most {options.max_iterations}, J = {row['cost'][0]:.4f}, scaled violation "
+            f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
+    return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {options.max_outer}, "
+                              f"largest scaled violation {np.max(row['violation']):.1e} (done below "
+                              f"{options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}",
+                              task=(label, i + 1, options.max_outer))
+
+
+def _done(say: Callable[..., None], label: str, result, solved: Callable = len):
+    """Reports a stage finished (``solved(result)``: how many problems it solved) and passes its result on."""
+    count = solved(result)
+    say(f"{label}: done", task=(label, count, count))
+    return result
+
+
+def _power_report(say: Callable[..., None], solvers: StudySolvers) -> Callable[[int, dict], None]:
+    """The smallest power limit's progress line, counted per model of the stage's space."""
+    def report(i, row):
         space = row.get("space", "study space")
         label, cap = f"smallest power limit ({space})", (
             solvers.coarse_power if space == "coarse space" else solvers.power).options.max_iterations
         say(f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at most "
             f"{cap}, M_W / start = {row['cost'][0]:.4f}, scaled violation "
             f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
-    minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
-        "smallest power limit (study space)", minimal_power_limits(
-            solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
-            progress=power_report),
-        lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
+    return report
 
+
+def _write_results(out: Path, solutions: list[GaitSolution], at_20: list[GaitSolution], minimal: list[dict],
+                   settings: gait.GaitSettings, solver: GaitSolver, method: str, say: Callable[..., None]) -> dict:
+    """The study's files from its three stages: results.json, tables.md, Figs. 2-3, convergence.png,
+    trajectories.npz and the drive-train part; returns the results record."""
+    names = [s.name for s in solutions]
     records = []
     for solution, minimum in zip(solutions, minimal):
         record = gait_report.results_record(solution)

@@ -1,0 +1,202 @@
+"""The co-design's hardware as arrays: a :class:`DriveDesign` (traced, batchable with ``vmap``) holds per
+actuated joint (H1, K1, H2, K2) a gear of ratio N and a motor winding, and the structural mass of each
+link. It maps to the gait problem (:func:`gait_model`) as
+
+- reflected inertia N^2 (J_rotor + J_gear) as the joint's armature in the MJX model;
+- motor and gear mass as a point mass at the joint on the link carrying the drive (both hip drives in
+  the torso, each knee drive at the knee end of its thigh; ``biped_jax.robots.design``);
+- the objective: the Joule energy integral of R i^2 with i = T_m / k_t and T_m the motor torque
+  through the gear (eq. 2.3, efficiency both ways); for identical drives it is a constant times the
+  paper's integral of u^T u;
+- the voltage limit: every operating point under the speed-torque line at the supply voltage, a
+  constraint beside the power limit |qdot u| <= M_W.
+
+Catalogue designs (:func:`catalogue_design`) carry the exact data of a Maxon motor and gearhead; a
+continuous gear ratio (:func:`with_ratio`) interpolates the gearhead stages.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax import checks
+from biped_jax.drives import model as drive_model
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.gait import problem as gait
+from biped_jax.gait.solver import stack_tree
+from biped_jax.robots.design import Design, check_design
+from biped_jax.robots.planar_biped import PLANAR_DRIVE_MOUNTS, PLANAR_LINKS
+
+
+#: The paper's drive for the 12 kg robot (Section 2.3): the 42 V RE 25 winding, GP 32 A 66:1, 38 V supply.
+REFERENCE_MOTOR, REFERENCE_GEARHEAD = "RE25-42V", "GP32A-66.22"
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class DriveDesign:
+    """The hardware of the sagittal biped (SI units; per-joint arrays in (H1, K1, H2, K2) order).
+
+    Attributes:
+      ratio: gear ratio N, (4,). gear_efficiency: eta, (4,). gear_inertia: referred to the motor
+        side, kg m^2, (4,). gear_mass: kg, (4,).
+      torque_constant: k_t, N m/A, (4,). resistance: R, ohm, (4,). rotor_inertia: kg m^2, (4,).
+        motor_mass: kg, (4,).
+      structure_mass: the links without drives (torso, thigh1, shank1, thigh2, shank2), kg, (5,).
+      supply_voltage: V_s, V, ().
+    """
+
+    ratio: jax.Array
+    gear_efficiency: jax.Array
+    gear_inertia: jax.Array
+    gear_mass: jax.Array
+    torque_constant: jax.Array
+    resistance: jax.Array
+    rotor_inertia: jax.Array
+    motor_mass: jax.Array
+    structure_mass: jax.Array
+    supply_voltage: jax.Array
+
+    @property
+    def total_mass(self) -> jax.Array:
+        """Structure plus drives, kg."""
+        return (jnp.sum(self.structure_mass, axis=-1) + jnp.sum(self.gear_mass, axis=-1)
+                + jnp.sum(self.motor_mass, axis=-1))
+
+
+def reflected_inertia(design: DriveDesign) -> jax.Array:
+    """N^2 (J_rotor + J_gear) per joint, kg m^2, (4,): the drive's inertia seen at the joint."""
+    return drive_model.reflected_inertia(design.ratio, design.rotor_inertia, design.gear_inertia)
+
+
+def robot_design(design: DriveDesign) -> Design:
+    """The MJX model's design arrays: structure masses, armature N^2 J, drive masses at the joints.
+    A concrete design is checked (ValueError naming a non-positive or non-finite mass)."""
+    result = Design(link_mass=design.structure_mass, joint_armature=reflected_inertia(design),
+                    joint_damping=jnp.zeros_like(design.ratio),
+                    drive_mass=design.motor_mass + design.gear_mass)
+    if checks.concrete(design):
+        check_design(result, hs.planar_layouts()[0])
+    return result
+
+
+def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
+    """The drives as the gait problem sees them (objective: Joule energy; constraint: voltage; the
+    gear's torque is bounded by the gait's own torque bound, so no gear limit here)."""
+    return drive_model.JointDrives(ratio=design.ratio, efficiency=design.gear_efficiency,
+                                   torque_constant=design.torque_constant, resistance=design.resistance,
+                                   supply_voltage=design.supply_voltage,
+                                   gear_torque_limit=jnp.full_like(design.ratio, jnp.inf),
+                                   reflected_inertia=reflected_inertia(design))
+
+
+def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait.GaitModel:
+    """The gait problem of a design (traceable: ``speed`` etc. may be arrays). The geometry is that of
+    the paper's biped (planar-step.md); masses and drives come from ``design``. Concrete values are
+    checked (:func:`biped_jax.gait.problem.check_problem`)."""
+    if checks.concrete(speed, power_limit, step_length):
+        gait.check_problem(speed, power_limit, step_length)
+    return gait.GaitModel(design=robot_design(design), speed=jnp.asarray(speed, float),
+                          step_length=jnp.asarray(step_length, float),
+                          power_limit=jnp.asarray(power_limit, float), drives=joint_drives(design))
+
+
+def _structure_of(mass_class: str, drive_mass: float) -> np.ndarray:
+    """The mass class's link masses with four drives of ``drive_mass`` taken out of the links that
+    carry them, kg, (5,): the robot weighs its nominal mass with those drives fitted."""
+    structure = np.asarray(hs.planar_design(mass_class).link_mass, dtype=float).copy()
+    for mount in PLANAR_DRIVE_MOUNTS:
+        structure[PLANAR_LINKS.index(mount)] -= drive_mass
+    if np.any(structure <= 0):
+        raise ValueError(f"drives of {drive_mass} kg each leave no structure in the {mass_class} biped")
+    return structure
+
+
+def catalogue_design(motor: str = REFERENCE_MOTOR, gearhead: str | tuple[str, ...] = REFERENCE_GEARHEAD,
+                     mass_class: str = "12kg", total_mass: float | None = None,
+                     supply_voltage: float | None = None,
+                     catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
+    """A catalogue motor at all four joints with one gearhead, or one per joint (a tuple of four names
+    in (H1, K1, H2, K2) order).
+
+    The structure is the mass class's links less the reference drives (so the reference design weighs
+    the nominal 12 or 18 kg); ``total_mass`` (kg) scales the structure uniformly to reach that total.
+    ``supply_voltage`` defaults to the catalogue's (the paper's 38 V). Raises ValueError naming an
+    unknown part or an unreachable total mass.
+    """
+    catalogue = catalogue or drive_model.load_catalogue()
+    m = catalogue.motor(motor)
+    names = (gearhead,) * 4 if isinstance(gearhead, str) else tuple(gearhead)
+    if len(names) != 4:
+        raise ValueError(f"give one gearhead or four (H1, K1, H2, K2), got {gearhead!r}")
+    heads = [catalogue.gearhead(name) for name in names]
+    reference = catalogue.motor(REFERENCE_MOTOR).mass + catalogue.gearhead(REFERENCE_GEARHEAD).mass
+    structure = _structure_of(mass_class, reference)
+    drives_mass = 4 * m.mass + sum(h.mass for h in heads)
+    if total_mass is not None:
+        if not (math.isfinite(total_mass) and total_mass > drives_mass):
+            raise ValueError(f"total_mass must exceed the drives' {drives_mass:.2f} kg, got {total_mass!r}")
+        structure = structure * (total_mass - drives_mass) / structure.sum()
+    four = lambda value: jnp.full(4, float(value))  # noqa: E731
+    voltage = catalogue.supply_voltage if supply_voltage is None else supply_voltage
+    if not (math.isfinite(voltage) and voltage > 0):
+        raise ValueError(f"supply_voltage must be positive, got {voltage!r}")
+    per_joint = lambda field: jnp.array([getattr(h, field) for h in heads], dtype=float)  # noqa: E731
+    return DriveDesign(ratio=per_joint("ratio"), gear_efficiency=per_joint("efficiency"),
+                       gear_inertia=per_joint("inertia"), gear_mass=per_joint("mass"),
+                       torque_constant=four(m.torque_constant),
+                       resistance=four(m.resistance), rotor_inertia=four(m.rotor_inertia),
+                       motor_mass=four(m.mass), structure_mass=jnp.asarray(structure),
+                       supply_voltage=jnp.asarray(float(voltage)))
+
+
+def _stage_table(catalogue: drive_model.Catalogue):
+    """Per gearhead stage: geometric-mean ratio, efficiency, inertia, mass (numpy, ascending ratio)."""
+    stages = {}
+    for g in catalogue.gearheads.values():
+        stages.setdefault(g.stages, []).append(g)
+    rows = []
+    for _, heads in sorted(stages.items()):
+        ratios = np.array([h.ratio for h in heads])
+        rows.append((math.exp(np.mean(np.log(ratios))), heads[0].efficiency, heads[0].inertia, heads[0].mass))
+    return np.array(rows)
+
+
+def with_ratio(design: DriveDesign, log_ratio: jax.Array,
+               catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
+    """``design`` with gear ratios exp(log_ratio) ((4,), traceable) and the gear's efficiency, inertia
+    and mass interpolated linearly in log N between the GP 32 A stages (at each stage's geometric-mean
+    ratio): a smooth stand-in for the stage steps, so the ratio can be a continuous design variable.
+    Catalogue designs (:func:`catalogue_design`) carry the exact data of their gearhead."""
+    table = _stage_table(catalogue or drive_model.load_catalogue())
+    log_stage = jnp.log(table[:, 0])
+    interpolate = lambda column: jnp.interp(log_ratio, log_stage, jnp.asarray(table[:, column]))  # noqa: E731
+    return dataclasses.replace(design, ratio=jnp.exp(log_ratio), gear_efficiency=interpolate(1),
+                               gear_inertia=interpolate(2), gear_mass=interpolate(3))
+
+
+def nearest_gearhead(ratio: float, catalogue: drive_model.Catalogue | None = None) -> str:
+    """The catalogue gearhead whose ratio is nearest to ``ratio`` in log scale; ValueError for a ratio
+    more than a factor 2 outside the catalogue's range (no gearhead is near it)."""
+    catalogue = catalogue or drive_model.load_catalogue()
+    drive_model.check_ratio(ratio)
+    ratios = [g.ratio for g in catalogue.gearheads.values()]
+    if not 0.5 * min(ratios) <= ratio <= 2 * max(ratios):
+        raise ValueError(f"gear ratio {ratio!r} is far outside the catalogue's {min(ratios):g}-{max(ratios):g}: "
+                         "no gearhead is near it")
+    return min(catalogue.gearheads.values(), key=lambda g: abs(math.log(g.ratio / ratio))).part
+
+
+def stack(designs: list[DriveDesign]) -> DriveDesign:
+    """A batch (leading dimension B) of designs."""
+    return stack_tree(designs)
+
+
+def unstack(designs: DriveDesign) -> list[DriveDesign]:
+    size = designs.supply_voltage.shape[0]
+    return [jax.tree.map(lambda a: a[b], designs) for b in range(size)]
