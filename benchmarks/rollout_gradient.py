@@ -23,11 +23,11 @@ def rollout_cost(biped, design, q0, qd0, controls, dynamics="mjx"):
     from biped_jax.dynamics import planar_chain
     pinned = hs.with_design(biped, design).pinned
     if dynamics == "chain":
-        q, qd, _, force = planar_chain.stance_rollout(planar_chain.PlanarChain.from_model(biped.pinned), pinned,
-                                                      q0, qd0, controls)
+        trajectory = planar_chain.stance_rollout(planar_chain.PlanarChain.from_model(biped.pinned), pinned,
+                                                 q0, qd0, controls)
     else:
         trajectory = hs.stance_rollout(pinned, q0, qd0, controls)
-        q, qd, force = trajectory.q, trajectory.qd, trajectory.ground_force
+    q, qd, force = trajectory.q, trajectory.qd, trajectory.ground_force
     foot, _ = hs.swing_foot(pinned, q[-1], qd[-1])
     return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + foot[1] ** 2
             + 1e-3 * jnp.sum(controls ** 2) + 1e-6 * jnp.sum(force[:, 1] ** 2))

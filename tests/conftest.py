@@ -52,24 +52,31 @@ GRADIENT_STEPS, GRADIENT_DT = 20, 1.8e-3
 GRADIENT_START = (np.array([-0.35, 0.0, -0.35, 0.35, 0.0]), np.array([2.5, 0.0, 2.5, -4.0, 0.0]))
 
 
-def rollout_cost(q, qd, qdd, u, force):
-    """A scalar of everything a rollout returns (final state and acceleration, torques, ground force)."""
+def rollout_cost(q, qd, qdd, u, force, foot, foot_velocity, end_force):
+    """A scalar of everything a rollout returns (final state and acceleration, torques, ground force) and
+    of the swing foot's position and velocity at its end and the ground force recomputed from the last
+    step's state and acceleration."""
     return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + 1e-2 * jnp.sum(qdd[-1]) + 1e-2 * jnp.sum(u ** 2)
-            + 1e-4 * jnp.sum(force[:, 1] ** 2))
+            + 1e-4 * jnp.sum(force[:, 1] ** 2) + foot[1] + jnp.sum(foot_velocity) + 1e-2 * end_force[1]
+            + 1e-2 * end_force[0] ** 2)
 
 
 @pytest.fixture(scope="session")
 def mjx_rollout_gradient(biped12):
     """``(q0, qd0, controls) -> ((cost, trajectory), gradient)`` of :func:`rollout_cost` through MJX's
-    rollout on the 12 kg biped at :data:`GRADIENT_DT`: one compiled program that the finite-difference
-    check (test_hybrid_step) and the closed-form chain's gradient (test_planar_chain) both use."""
+    rollout, swing foot and ground reaction on the 12 kg biped at :data:`GRADIENT_DT`: one compiled
+    program that the finite-difference check (test_hybrid_step) and the closed-form chain's gradient
+    (test_planar_chain) both use."""
     from biped_jax.dynamics import hybrid_step
     pinned = hybrid_step.with_timestep(biped12.pinned, GRADIENT_DT)
 
     def cost(params):
         trajectory = hybrid_step.stance_rollout(pinned, *params)
-        return rollout_cost(trajectory.q, trajectory.qd, trajectory.qdd, trajectory.u,
-                            trajectory.ground_force), trajectory
+        q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
+        foot, foot_velocity = hybrid_step.swing_foot(pinned, q[-1], qd[-1])
+        end_force = hybrid_step.ground_reaction(pinned, q[-2], qd[-2], qdd[-1])
+        return rollout_cost(q, qd, qdd, trajectory.u, trajectory.ground_force, foot, foot_velocity,
+                            end_force), trajectory
     return jax.jit(jax.value_and_grad(cost, has_aux=True))
 
 

@@ -65,38 +65,56 @@ def test_every_quantity_equals_mjx(biped12, designed, seed):
                                data.site_xpos[jnp.array(site_ids)][:, jnp.array([0, 2])], atol=1e-14)
 
 
+@pytest.fixture(scope="module")
+def landings(designed_biped):
+    """(closed form, MJX) of the touchdown and the swing foot's motion, each one compiled program (MJX
+    run op by op compiles every operation alone); MJX's touchdown is the program of every test's."""
+    chain = planar_chain.PlanarChain.from_model(designed_biped.pinned)
+
+    @jax.jit
+    def closed_form(pinned, q, qd):
+        return (impact.chain_touchdown(chain, pinned, q, qd),
+                planar_chain.site_motion(chain, pinned, q, qd, "foot2"))
+    return closed_form, jax.jit(impact.touchdown), jax.jit(hs.swing_foot)
+
+
 @pytest.mark.parametrize("seed", [0, 1])
-def test_touchdown_and_swing_foot_equal_mjx(designed_biped, seed):
+def test_touchdown_and_swing_foot_equal_mjx(designed_biped, landings, seed):
     """The impact in the pinned chain's coordinates extended by the root's translation is MJX's impact
     on the floating model: every field of the touchdown (impulse, velocities, relabelled state), and
     the swing foot's motion, at random pre-impact states of a design with armature."""
-    chain = planar_chain.PlanarChain.from_model(designed_biped.pinned)
+    closed_form, touchdown, swing_foot = landings
     rng = np.random.default_rng(seed)
     q = jnp.array([0.2, 0.3, -0.4, 0.5, 0.1]) + 0.1 * jnp.asarray(rng.normal(size=5))
     qd = jnp.asarray(2 * rng.normal(size=5))
-    closed_form = impact.chain_touchdown(chain, designed_biped.pinned, q, qd)
-    reference = impact.touchdown(designed_biped, q, qd)
+    mine, motion = closed_form(designed_biped.pinned, q, qd)
+    reference = touchdown(designed_biped, q, qd)
     assert np.linalg.norm(reference.impulse) > 1.0  # a real impact
     for field in dataclasses.fields(reference):
-        np.testing.assert_allclose(getattr(closed_form, field.name), getattr(reference, field.name),
+        np.testing.assert_allclose(getattr(mine, field.name), getattr(reference, field.name),
                                    rtol=1e-11, atol=1e-12, err_msg=field.name)
-    for mine, theirs in zip(planar_chain.site_motion(chain, designed_biped.pinned, q, qd, "foot2"),
-                            hs.swing_foot(designed_biped.pinned, q, qd)):
-        np.testing.assert_allclose(mine, theirs, atol=1e-13)
+    for closed, theirs in zip(motion, swing_foot(designed_biped.pinned, q, qd)):
+        np.testing.assert_allclose(closed, theirs, atol=1e-13)
 
 
 @pytest.mark.slow
 def test_rollout_and_its_gradient_equal_mjx(biped12, mjx_rollout_gradient):
     """20 Euler steps of 1.8 ms (no damping: MJX's implicit damping would differ by O(dt^2)), and the
-    gradient of a cost of the whole rollout with respect to the start state and the torques (MJX's
-    program is the one test_hybrid_step checks against finite differences)."""
+    gradient of a cost of the whole rollout, the swing foot at its end and the ground force from its
+    last state with respect to the start state and the torques (MJX's program is the one
+    test_hybrid_step checks against finite differences)."""
     chain = planar_chain.PlanarChain.from_model(biped12.pinned)
     pinned = hs.with_timestep(biped12.pinned, GRADIENT_DT)
     params = (*map(jnp.asarray, GRADIENT_START), jnp.asarray(np.random.default_rng(3).normal(size=(GRADIENT_STEPS, 4))))
 
     def chain_cost(params):
-        q, qd, qdd, force = planar_chain.stance_rollout(chain, pinned, *params)
-        return rollout_cost(q, qd, qdd, params[2], force), (q, force)
+        trajectory = planar_chain.stance_rollout(chain, pinned, *params)
+        q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
+        foot, foot_velocity = planar_chain.site_motion(chain, pinned, q[-1], qd[-1], "foot2")
+        last = planar_chain.kinematics(chain, pinned, q[-2], qd[-2])
+        end_force = planar_chain.root_force(chain, pinned, last, qdd[-1])
+        return rollout_cost(q, qd, qdd, trajectory.u, trajectory.ground_force, foot, foot_velocity,
+                            end_force), (q, trajectory.ground_force)
 
     (_, (q, force)), gradient = jax.jit(jax.value_and_grad(chain_cost, has_aux=True))(params)
     (_, reference), reference_gradient = mjx_rollout_gradient(params)

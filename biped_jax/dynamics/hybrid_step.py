@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import checks
+from biped_jax.dynamics.planar_chain import StanceTrajectory
 from biped_jax.robots import registry as robots
 from biped_jax.robots.design import (
     Design,
@@ -50,26 +51,6 @@ class PlanarBiped:
 
     pinned: object
     floating: object
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class StanceTrajectory:
-    """A single-support rollout of T steps.
-
-    Attributes:
-      q: pinned coordinates, shape (T + 1, 5), rad.
-      qd: their rates, shape (T + 1, 5), rad/s.
-      qdd: accelerations at steps 0..T-1, shape (T, 5), rad/s^2.
-      u: joint torques applied at steps 0..T-1, shape (T, 4), N m.
-      ground_force: stance-foot ground reaction (F_x, F_z) at steps 0..T-1, shape (T, 2), N.
-    """
-
-    q: jax.Array
-    qd: jax.Array
-    qdd: jax.Array
-    u: jax.Array
-    ground_force: jax.Array
 
 
 # ----------------------------------------------------------------------------- models and designs

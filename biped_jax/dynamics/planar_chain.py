@@ -107,6 +107,27 @@ def _xz(a: jax.Array) -> jax.Array:
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
+class StanceTrajectory:
+    """A single-support rollout of T steps (either dynamics: :func:`stance_rollout` here,
+    :func:`biped_jax.dynamics.hybrid_step.stance_rollout` in MJX).
+
+    Attributes:
+      q: pinned coordinates, shape (T + 1, 5), rad.
+      qd: their rates, shape (T + 1, 5), rad/s.
+      qdd: accelerations at steps 0..T-1, shape (T, 5), rad/s^2.
+      u: joint torques applied at steps 0..T-1, shape (T, 4), N m.
+      ground_force: stance-foot ground reaction (F_x, F_z) at steps 0..T-1, shape (T, 2), N.
+    """
+
+    q: jax.Array
+    qd: jax.Array
+    qdd: jax.Array
+    u: jax.Array
+    ground_force: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
 class ChainState:
     """Kinematics of one configuration and velocity (world x-z plane, SI).
 
@@ -235,8 +256,8 @@ def stance_step(chain: PlanarChain, model, state: tuple[jax.Array, jax.Array], u
 def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, controls: jax.Array):
     """Single support under zero-order-hold torques, semi-implicit Euler as MJX's ``euler`` with
     ``model.opt.timestep`` (explicit damping: MJX's with ``EULERDAMP`` disabled, identical without
-    damping). q0, qd0 (n,); controls (T, n_actuators). Returns q, qd (T + 1, n), qdd (T, n) and the
-    root (stance) force (T, 2)."""
+    damping). q0, qd0 (n,); controls (T, n_actuators). Returns a :class:`StanceTrajectory` (the root's
+    force as the ground force), as MJX's rollout does."""
 
     @jax.checkpoint
     def step(state, u):
@@ -244,4 +265,5 @@ def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, con
         return state, (*state, qdd, force)
 
     _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
-    return (jnp.concatenate([q0[None], q]), jnp.concatenate([qd0[None], qd]), qdd, force)
+    return StanceTrajectory(q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]), qdd=qdd,
+                            u=controls, ground_force=force)

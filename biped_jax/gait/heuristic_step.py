@@ -86,7 +86,7 @@ def reference(gait: HeuristicGait, start, end, stance, stance_rate, stance_start
     return angle, rate
 
 
-def simulate(biped: hs.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
+def simulate_step(biped: hs.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
     """Runs the step; returns (trajectory, dt, touchdown index or -1, Touchdown at that index, swing
     foot positions and velocities).
 

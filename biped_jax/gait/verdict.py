@@ -13,24 +13,19 @@ import jax
 from biped_jax.gait import problem as gait
 from biped_jax.optim import nlp
 
-
 #: Largest violation accepted, in each constraint group's own unit.
 VIOLATION_TOLERANCE = 1e-4
-
 
 #: Status of a solution that converged on its grid but fails the refinement check.
 GRID_DEPENDENT = "grid dependent"
 
-
 #: Largest relative change of J between the solution's grid and the refined one.
 REFINED_COST_CHANGE = 5e-3
-
 
 #: Largest violation on the refined grid per unit (power: a fraction of M_W, see refined_tolerance).
 _REFINED_TOLERANCE = {"m": 1e-4, "rad": 1e-3, "rad/s": 1e-3, "m/s": 1e-3, "N": 1.0, "N m": 0.05,
                       "N s": 1e-3, "V": 0.1}
-
-
+#: The refinement check's power tolerance, a fraction of M_W.
 REFINED_POWER_FRACTION = 0.01
 
 

@@ -22,7 +22,6 @@ from biped_jax.optim import nlp
 #: (:attr:`biped_jax.optim.sqp.SQPOptions.step`).
 STEP = 1e-5
 
-
 #: Colour counts are padded to a multiple of this, so that problems of one shape whose sparsity
 #: patterns differ slightly still share one compiled derivative program.
 COLOUR_PADDING = 8

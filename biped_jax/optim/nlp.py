@@ -18,12 +18,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
+#: A solve's outcomes (both solvers; the gait's verdict adds "grid dependent").
 CONVERGED, INFEASIBLE, ITERATION_LIMIT, DIVERGED = "converged", "infeasible", "iteration limit", "diverged"
-
-
 #: At the penalty cap with the violation no longer falling, but too small to call the problem
-#: infeasible (below ``SolverOptions.infeasible_above``): the inner solver stalled near a feasible
+#: infeasible (below the solver options' ``infeasible_above``): the inner solver stalled near a feasible
 #: point, which says nothing about whether one exists.
 STALLED = "stalled"
 

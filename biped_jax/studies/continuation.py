@@ -24,7 +24,6 @@ from biped_jax.studies.paper import PAPER_MODELS, paper_gait_models
 #: span (multiple shooting).
 CONTINUATION_SETTINGS = gait.GaitSettings(segments=16)
 
-
 #: Its solver settings at the model's limit: the Gauss-Newton preconditioner refreshed every 10 L-BFGS
 #: iterations with the full Gauss-Newton step after each refresh, 80 iterations per inner problem, the
 #: penalty from 1e3 growing 3x at most per update, and IPOPT-like acceptable termination (feasible and J
@@ -33,10 +32,8 @@ CONTINUATION_OPTIONS = dataclasses.replace(gait_solver.GAIT_SOLVER_OPTIONS, prec
                                            cap_first_step=False, max_outer=30, penalty_initial=1e3,
                                            penalty_growth=3.0, acceptable_change=1e-4)
 
-
 #: Its start families: those landing on a flexed knee and the plain straight-stance one.
 CONTINUATION_FAMILIES = gait.IMPACT_FAMILIES + gait.START_FAMILIES[:1]
-
 
 #: The first stage's "no power limit", W (the power constraint is scaled by it: far out of reach).
 FREE_POWER_LIMIT = 1e4

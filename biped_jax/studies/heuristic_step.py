@@ -36,7 +36,7 @@ def step_report(mass_class: str, gait) -> tuple[dict, dict]:
     # class, read here where the model is concrete); numpy from here: no op-by-op programs
     chain = planar_chain.PlanarChain.from_model(biped.pinned)
     trajectory, dt, index, impact, foot, foot_velocity = jax.tree.map(np.asarray, jax.jit(
-        functools.partial(heuristic_step.simulate, gait=gait, chain=chain))(biped))
+        functools.partial(heuristic_step.simulate_step, gait=gait, chain=chain))(biped))
     index, dt = int(index), float(dt)
     pinned = hybrid_step.with_timestep(biped.pinned, dt)
     end = index if index > 0 else len(trajectory.u)
