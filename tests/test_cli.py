@@ -103,6 +103,7 @@ def test_reproduce_writes_the_study(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("donald")  # the walker of tests/test_donald.py
 def test_donald_command_writes_its_report(tmp_path):
     assert cli.main(["donald", "--out", str(tmp_path), "--steps", "2"]) == 0
     report = json.loads((tmp_path / "donald.json").read_text())

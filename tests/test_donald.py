@@ -12,6 +12,10 @@ from biped_jax.studies import donald as donald_study
 
 STEPS = 2  # one compiled walker (2 steps) serves every test here
 
+#: The walker's program is `biped-jax donald --steps 2`'s too (tests/test_cli.py): one worker runs both
+#: (pytest-xdist --dist loadgroup), so that it compiles once.
+pytestmark = pytest.mark.xdist_group("donald")
+
 
 @pytest.fixture(scope="module")
 def setup():

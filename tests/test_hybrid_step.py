@@ -16,6 +16,10 @@ from biped_jax.dynamics import planar_chain
 from biped_jax.robots import planar_biped
 from biped_jax.robots import registry as robots
 
+#: Every test here shares compiled MJX programs with the others of its group: one worker runs them all
+#: (pytest-xdist --dist loadgroup), so that each program compiles once, not on two workers at once.
+pytestmark = pytest.mark.xdist_group("mjx_biped")
+
 mjx = robots.import_mjx()
 
 # A generic single-support state (knees bent, legs apart, everything moving) and torques.

@@ -16,6 +16,10 @@ from biped_jax.dynamics import planar_chain
 from biped_jax.gait import problem as gait
 from biped_jax.robots import planar_biped
 
+#: Every test here shares compiled MJX programs with the others of its group: one worker runs them all
+#: (pytest-xdist --dist loadgroup), so that each program compiles once, not on two workers at once.
+pytestmark = pytest.mark.xdist_group("mjx_biped")
+
 mjx = hs.mjx
 SITES = ("foot1", "knee1", "hip", "knee2", "foot2")
 

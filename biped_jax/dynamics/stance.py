@@ -3,8 +3,9 @@ planar chain (:class:`ChainDynamics`, :mod:`biped_jax.dynamics.planar_chain`) an
 (:class:`MjxDynamics`), equal to rounding. A small strategy object chosen once by name
 (:func:`stance_dynamics`): the gait rollout reads the mass matrix, bias force, ground force, sites,
 swing foot and touchdown from it (the zero dynamics under prescribed joints); the heuristic step
-advances the torque-driven step with :func:`stance_step`, as the quickstart's
-:func:`biped_jax.dynamics.hybrid_step.stance_rollout` does (the same MJX step)."""
+advances the torque-driven step with :func:`stance_step` (MJX's step is the one under the
+quickstart's :func:`biped_jax.dynamics.hybrid_step.stance_rollout`, the chain's the one under
+:func:`biped_jax.dynamics.planar_chain.stance_rollout`)."""
 
 from __future__ import annotations
 
