@@ -16,18 +16,20 @@ from biped_jax.dynamics import planar_chain
 from biped_jax.robots import planar_biped
 from biped_jax.robots import registry as robots
 
-#: Every test here shares compiled MJX programs with the others of its group: one worker runs them all
-#: (pytest-xdist --dist loadgroup), so that each program compiles once, not on two workers at once.
-pytestmark = pytest.mark.xdist_group("mjx_biped")
+#: Tests sharing a compiled MJX program (or a module fixture's) carry one xdist_group: pytest-xdist's
+#: loadgroup runs a group on one worker, in order, so that the program compiles once instead of on two
+#: workers at the same time; "mjx_rollout" (the 50-step rollout and the single-support program; the README
+#: quickstart's rollout), "mjx_touchdown" (MJX's touchdown), "mjx_gradient" (the rollout's gradient).
 
 mjx = robots.import_mjx()
 
 
+@pytest.mark.xdist_group("mjx_rollout")
 def test_the_group_holds_under_xdist(request):
     """Under pytest-xdist's loadgroup the group is in the test's id (its only channel to the scheduler):
     without it the shared programs compile on two workers at once (pytest 9.2 drops it, xdist #1386)."""
     if getattr(request.config.option, "loadgroup", False):
-        assert request.node.nodeid.endswith("@mjx_biped"), request.node.nodeid
+        assert request.node.nodeid.endswith("@mjx_rollout"), request.node.nodeid
 
 # A generic single-support state (knees bent, legs apart, everything moving) and torques.
 Q = jnp.array([0.25, 0.2, 0.15, -0.45, 0.5])
@@ -41,6 +43,7 @@ EXACT = 1e-10
 # ----------------------------------------------------------------------------- energy
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("mjx_rollout")
 def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollout):
     """MuJoCo's semi-implicit Euler conserves energy to O(dt): halving dt halves the error.
 
@@ -119,6 +122,7 @@ def single_support(biped12):
     return at
 
 
+@pytest.mark.xdist_group("mjx_rollout")
 def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout, single_support):
     """MJX's ground force (its recursive Newton-Euler pass) is F = sum_i m_i (a_i - g), the centres of
     mass's accelerations from the closed-form chain; and the rollout's per-step force is the same
@@ -137,6 +141,7 @@ def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout,
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("mjx_rollout")
 def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(single_support):
     """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
     equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
@@ -166,6 +171,7 @@ def landing(biped12):
     return jax.jit(impact.touchdown)(biped12, Q, QD)
 
 
+@pytest.mark.xdist_group("mjx_touchdown")
 def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landing):
     floating = biped12.floating
     foot2 = hs.site_position(floating, landing.floating_q, "foot2")
@@ -175,12 +181,14 @@ def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landi
     assert float(after) == pytest.approx(float(before), abs=EXACT)
 
 
+@pytest.mark.xdist_group("mjx_touchdown")
 def test_impact_leaves_the_landing_foot_at_rest(biped12, landing):
     jac = jax.jit(impact.foot_jacobian, static_argnums=2)(biped12.floating, landing.floating_q, "foot2")
     assert float(jnp.linalg.norm(jac @ landing.floating_qd_before)) > 0.1
     np.testing.assert_allclose(jac @ landing.floating_qd_after, 0.0, atol=EXACT)
 
 
+@pytest.mark.xdist_group("mjx_touchdown")
 def test_impact_momentum_balance(biped12, landing):
     """M (qd+ - qd-) = J^T Lambda, and the linear momentum jumps by the impulse."""
     floating, qf = biped12.floating, landing.floating_q
@@ -194,6 +202,7 @@ def test_impact_momentum_balance(biped12, landing):
     np.testing.assert_allclose(momentum_jump[jnp.array([0, 2])], landing.impulse, atol=EXACT)
 
 
+@pytest.mark.xdist_group("mjx_touchdown")
 def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
     qf_after = landing.floating_qd_after
     # New leg 1 is old leg 2: the new stance knee rate is old knee2's post-impact rate, and so on.
@@ -239,6 +248,7 @@ def _c_rollout(mj_model, q0, qd0, controls):
     return np.array(states)
 
 
+@pytest.mark.xdist_group("mjx_rollout")
 def test_mjx_matches_mujoco_c_pinned_rollout(biped12, rollout):
     mj_model = robots.load_mj_model("biped5_pinned_12kg")
     rng = np.random.default_rng(0)
@@ -291,6 +301,7 @@ def _directional_derivatives(value_and_grad, params, seed, directions=3):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("mjx_gradient")
 def test_rollout_gradient_matches_central_finite_differences(mjx_rollout_gradient):
     """d/d(q0, qd0, controls) of a cost of a whole rollout (20 steps in float64), the swing foot's
     position and velocity at its end and the ground reaction recomputed there (MJX's forward kinematics

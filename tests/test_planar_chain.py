@@ -16,9 +16,7 @@ from biped_jax.dynamics import planar_chain
 from biped_jax.gait import problem as gait
 from biped_jax.robots import planar_biped
 
-#: Every test here shares compiled MJX programs with the others of its group: one worker runs them all
-#: (pytest-xdist --dist loadgroup), so that each program compiles once, not on two workers at once.
-pytestmark = pytest.mark.xdist_group("mjx_biped")
+#: xdist groups: see tests/test_hybrid_step.py.
 
 mjx = hs.mjx
 SITES = ("foot1", "knee1", "hip", "knee2", "foot2")
@@ -83,6 +81,7 @@ def landings(designed_biped):
 
 
 @pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.xdist_group("mjx_touchdown")
 def test_touchdown_and_swing_foot_equal_mjx(designed_biped, landings, seed):
     """The impact in the pinned chain's coordinates extended by the root's translation is MJX's impact
     on the floating model: every field of the touchdown (impulse, velocities, relabelled state), and
@@ -102,6 +101,7 @@ def test_touchdown_and_swing_foot_equal_mjx(designed_biped, landings, seed):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("mjx_gradient")
 def test_rollout_and_its_gradient_equal_mjx(biped12, mjx_rollout_gradient):
     """20 Euler steps of 1.8 ms (no damping: MJX's implicit damping would differ by O(dt^2)), and the
     gradient of a cost of the whole rollout, the swing foot at its end and the ground force from its
