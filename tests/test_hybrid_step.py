@@ -16,10 +16,12 @@ from biped_jax.dynamics import planar_chain
 from biped_jax.robots import planar_biped
 from biped_jax.robots import registry as robots
 
-#: Tests sharing a compiled MJX program (or a module fixture's) carry one xdist_group: pytest-xdist's
-#: loadgroup runs a group on one worker, in order, so that the program compiles once instead of on two
-#: workers at the same time; "mjx_rollout" (the 50-step rollout and the single-support program; the README
-#: quickstart's rollout), "mjx_touchdown" (MJX's touchdown), "mjx_gradient" (the rollout's gradient).
+#: Tests sharing a compiled MJX program (or a module fixture's) with tests elsewhere carry one xdist_group
+#: (the others are grouped by module, tests/conftest.py): pytest-xdist's loadgroup runs a group on one
+#: worker, in order, so that the program compiles once instead of on two workers at the same time;
+#: "mjx_rollout" (the 50-step rollout and the single-support program; the README quickstart's rollout),
+#: "mjx_touchdown" (MJX's touchdown), "mjx_gradient" (the rollout's gradient), "mjx_forward" (mjx.forward
+#: per model, as tests/test_models.py).
 
 mjx = robots.import_mjx()
 
@@ -260,6 +262,7 @@ def test_mjx_matches_mujoco_c_pinned_rollout(biped12, rollout):
 
 
 @pytest.mark.parametrize("name", ["biped5_floating_12kg", "humanoid16_18kg"])
+@pytest.mark.xdist_group("mjx_forward")  # the same jit(mjx.forward) programs
 def test_mjx_matches_mujoco_c_accelerations(name):
     """Random states and torques (humanoid high in the air, so no contact)."""
     mj_model = robots.load_mj_model(name)

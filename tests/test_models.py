@@ -26,6 +26,7 @@ def test_committed_models_match_generators():
 
 
 @pytest.mark.parametrize("name", sorted(robots.ROBOTS))
+@pytest.mark.xdist_group("mjx_forward")  # the same jit(mjx.forward) programs
 def test_model_loads_and_steps_in_mujoco_and_mjx(name):
     mj_model = robots.load_mj_model(name)
     mj_data = mujoco.MjData(mj_model)
