@@ -36,7 +36,7 @@ def heuristic_steps(out: Path) -> dict:
     summaries, arrays = [], {}
     for mass_class in step_study.MASS_CLASSES:
         with console.status(f"simulating a heuristic step of the {mass_class} biped "
-                            "(the first run compiles, about a minute)"):
+                            "(the first run compiles for a few seconds)"):
             summary, arrays[mass_class] = step_study.step_report(mass_class, HeuristicGait())
         summaries.append(summary)
         console.print(f"[green]done[/] {mass_class}: touched down = {summary['touched_down']}")
