@@ -99,11 +99,12 @@ def paper_solutions(short_solver):
 
 #: The costliest xdist groups first (pytest-xdist hands out groups in collection order with
 #: --no-loadscope-reorder): the last group to start should be a short one. Seconds of compiling on an empty
-#: cache, measured 2026-12-03: the rollout gradient 90, the single-support and rollout group 110, co-design
-#: 70, the gait 90, the planar chain 75, the command line 60, DONALD 55, the touchdown 60.
-HEAVY_FIRST = ("mjx_gradient", "mjx_rollout", "test_codesign", "test_gait", "test_planar_chain", "test_cli",
-               "donald", "mjx_touchdown", "mjx_forward", "test_hybrid_step", "test_humanoid", "test_design",
-               "test_sqp", "test_readme", "test_models")
+#: cache, measured 2026-12-03 (commit c220789): the rollout and single-support group 138, the rollout
+#: gradient 108, the planar chain 67, co-design 66, the gait 65, mjx.forward 63, the touchdown 57, DONALD 52,
+#: the command line 39, the rest of the hybrid step 39, SLSQP 33, the rest under 30.
+HEAVY_FIRST = ("mjx_rollout", "mjx_gradient", "test_planar_chain", "test_codesign", "test_gait", "mjx_forward",
+               "mjx_touchdown", "donald", "test_cli", "test_hybrid_step", "test_sqp", "test_design", "test_humanoid",
+               "test_readme", "test_models")
 
 
 @pytest.hookimpl(tryfirst=True)
