@@ -24,6 +24,11 @@ def configure_jax(cache_dir: str | None = None) -> None:
                                         str(Path.home() / ".cache" / "biped_jax" / "jax"))
     jax.config.update("jax_compilation_cache_dir", cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    if jax.default_backend() == "cpu":
+        # JAX puts the GPU autotuning cache's directory into every program's cache key by default, so a
+        # cache copied or moved to another path would never hit; it serves GPUs only.
+        jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
 
 
 def heuristic_steps(out: Path) -> dict:

@@ -9,11 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-jax.config.update("jax_enable_x64", True)
-jax.config.update("jax_compilation_cache_dir",
-                  os.environ.get("BIPED_JAX_CACHE", str(Path.home() / ".cache" / "biped_jax" / "jax")))
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+from biped_jax.commands import configure_jax
+
+configure_jax()  # what `biped-jax` sets: float64, the persistent cache (BIPED_JAX_CACHE), every program cached
 
 
 def short_settings():
@@ -52,19 +50,17 @@ GRADIENT_STEPS, GRADIENT_DT = 20, 1.8e-3
 GRADIENT_START = (np.array([-0.35, 0.0, -0.35, 0.35, 0.0]), np.array([2.5, 0.0, 2.5, -4.0, 0.0]))
 
 
-def rollout_cost(q, qd, qdd, u, force, foot, foot_velocity, end_force):
-    """A scalar of everything a rollout returns (final state and acceleration, torques, ground force) and
-    of the swing foot's position and velocity at its end and the ground force recomputed from the last
-    step's state and acceleration."""
+def rollout_cost(q, qd, qdd, u, force, foot, foot_velocity):
+    """A scalar of everything a rollout returns (final state and acceleration, torques, the ground force
+    of every step: MJX's Newton-Euler pass) and of the swing foot's position and velocity at its end."""
     return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + 1e-2 * jnp.sum(qdd[-1]) + 1e-2 * jnp.sum(u ** 2)
-            + 1e-4 * jnp.sum(force[:, 1] ** 2) + foot[1] + jnp.sum(foot_velocity) + 1e-2 * end_force[1]
-            + 1e-2 * end_force[0] ** 2)
+            + 1e-4 * jnp.sum(force[:, 1] ** 2) + 1e-2 * jnp.sum(force[-1]) + foot[1] + jnp.sum(foot_velocity))
 
 
 @pytest.fixture(scope="session")
 def mjx_rollout_gradient(biped12):
     """``(q0, qd0, controls) -> ((cost, trajectory), gradient)`` of :func:`rollout_cost` through MJX's
-    rollout, swing foot and ground reaction on the 12 kg biped at :data:`GRADIENT_DT`: one compiled
+    rollout (its ground force per step) and swing foot on the 12 kg biped at :data:`GRADIENT_DT`: one compiled
     program that the finite-difference check (test_hybrid_step) and the closed-form chain's gradient
     (test_planar_chain) both use."""
     from biped_jax.dynamics import hybrid_step
@@ -74,9 +70,7 @@ def mjx_rollout_gradient(biped12):
         trajectory = hybrid_step.stance_rollout(pinned, *params)
         q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
         foot, foot_velocity = hybrid_step.swing_foot(pinned, q[-1], qd[-1])
-        end_force = hybrid_step.ground_reaction(pinned, q[-2], qd[-2], qdd[-1])
-        return rollout_cost(q, qd, qdd, trajectory.u, trajectory.ground_force, foot, foot_velocity,
-                            end_force), trajectory
+        return rollout_cost(q, qd, qdd, trajectory.u, trajectory.ground_force, foot, foot_velocity), trajectory
     return jax.jit(jax.value_and_grad(cost, has_aux=True))
 
 
@@ -98,13 +92,14 @@ def paper_solutions(short_solver):
 
 
 #: The costliest xdist groups first (pytest-xdist hands out groups in collection order with
-#: --no-loadscope-reorder): the last group to start should be a short one. Seconds of compiling on an empty
-#: cache, measured 2026-12-03 (commit c220789): the rollout and single-support group 138, the rollout
-#: gradient 108, the planar chain 67, co-design 66, the gait 65, mjx.forward 63, the touchdown 57, DONALD 52,
-#: the command line 39, the rest of the hybrid step 39, SLSQP 33, the rest under 30.
-HEAVY_FIRST = ("mjx_rollout", "mjx_gradient", "test_planar_chain", "test_codesign", "test_gait", "mjx_forward",
-               "mjx_touchdown", "donald", "test_cli", "test_hybrid_step", "test_sqp", "test_design", "test_humanoid",
-               "test_readme", "test_models")
+#: --no-loadscope-reorder): the last group to start should be a short one. Seconds of compiling, one process
+#: on an empty cache, measured 2026-12-03 (tests/conftest.py's BIPED_JAX_TEST_COMPILES, `-n0`), regrouped for
+#: this commit: the quickstart's programs and single support about 55, the gait 44, co-design 41, the
+#: rollout gradient 40, the rest of the hybrid step 35, the command line 35, SLSQP 31, the planar chain 28,
+#: mjx.forward 25, the rest under 25.
+HEAVY_FIRST = ("mjx_quickstart", "test_gait", "test_codesign", "mjx_gradient", "test_hybrid_step", "test_cli",
+               "test_sqp", "test_planar_chain", "mjx_forward", "test_design", "test_humanoid", "donald",
+               "test_readme", "test_augmented_lagrangian", "test_models")
 
 
 @pytest.hookimpl(tryfirst=True)

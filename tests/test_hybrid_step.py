@@ -19,19 +19,19 @@ from biped_jax.robots import registry as robots
 #: Tests sharing a compiled MJX program (or a module fixture's) with tests elsewhere carry one xdist_group
 #: (the others are grouped by module, tests/conftest.py): pytest-xdist's loadgroup runs a group on one
 #: worker, in order, so that the program compiles once instead of on two workers at the same time;
-#: "mjx_rollout" (the 50-step rollout and the single-support program; the README quickstart's rollout),
-#: "mjx_touchdown" (MJX's touchdown), "mjx_gradient" (the rollout's gradient), "mjx_forward" (mjx.forward
+#: "mjx_quickstart" (the README quickstart's programs, the 50-step rollout and MJX's touchdown, and the
+#: single-support program), "mjx_gradient" (the rollout's gradient), "mjx_forward" (mjx.forward
 #: per model, as tests/test_models.py).
 
 mjx = robots.import_mjx()
 
 
-@pytest.mark.xdist_group("mjx_rollout")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_the_group_holds_under_xdist(request):
     """Under pytest-xdist's loadgroup the group is in the test's id (its only channel to the scheduler):
     without it the shared programs compile on two workers at once (pytest 9.2 drops it, xdist #1386)."""
     if getattr(request.config.option, "loadgroup", False):
-        assert request.node.nodeid.endswith("@mjx_rollout"), request.node.nodeid
+        assert request.node.nodeid.endswith("@mjx_quickstart"), request.node.nodeid
 
 # A generic single-support state (knees bent, legs apart, everything moving) and torques.
 Q = jnp.array([0.25, 0.2, 0.15, -0.45, 0.5])
@@ -45,15 +45,25 @@ EXACT = 1e-10
 # ----------------------------------------------------------------------------- energy
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("mjx_rollout")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollout):
     """MuJoCo's semi-implicit Euler conserves energy to O(dt): halving dt halves the error.
 
     One compiled rollout of ROLLOUT_STEPS = 50 steps serves both step sizes; the errors are compared over
     the same 25 ms (25 steps at 1 ms against 50 steps at 0.5 ms).
     """
-    # over the states by lax.map: MJX vmapped compiles for half a minute, a loop over one state in seconds
-    energy = jax.jit(lambda model, q, qd: jax.lax.map(lambda s: hs.mechanical_energy(model, *s), (q, qd)))
+    # The energy from the closed-form chain (its own kinematics; its mass matrix is MJX's, test_planar_chain):
+    # compiles in a second, MJX's in ten.
+    chain = planar_chain.PlanarChain.from_model(biped12.pinned)
+
+    @jax.jit
+    def energy(model, q, qd):
+        def one(q, qd):
+            state = planar_chain.kinematics(chain, model, q, qd)
+            potential = -jnp.sum(model.body_mass[1:] * (state.com @ model.opt.gravity[jnp.array([0, 2])]))
+            return 0.5 * qd @ planar_chain.mass_matrix(chain, model, state) @ qd + potential
+        return jax.vmap(one)(q, qd)
+
     errors = {}
     for dt, steps in ((1e-3, ROLLOUT_STEPS // 2), (5e-4, ROLLOUT_STEPS)):
         model = hs.with_timestep(biped12.pinned, dt)
@@ -124,7 +134,7 @@ def single_support(biped12):
     return at
 
 
-@pytest.mark.xdist_group("mjx_rollout")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout, single_support):
     """MJX's ground force (its recursive Newton-Euler pass) is F = sum_i m_i (a_i - g), the centres of
     mass's accelerations from the closed-form chain; and the rollout's per-step force is the same
@@ -143,7 +153,7 @@ def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout,
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("mjx_rollout")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_ground_reaction_applied_to_the_floating_model_reproduces_single_support(single_support):
     """Apply the computed foot force to the free-floating model: its joint and hip accelerations must
     equal the pinned chain's (Newton-Euler of an independent model, not the same formula)."""
@@ -173,7 +183,7 @@ def landing(biped12):
     return jax.jit(impact.touchdown)(biped12, Q, QD)
 
 
-@pytest.mark.xdist_group("mjx_touchdown")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landing):
     floating = biped12.floating
     foot2 = hs.site_position(floating, landing.floating_q, "foot2")
@@ -183,28 +193,29 @@ def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landi
     assert float(after) == pytest.approx(float(before), abs=EXACT)
 
 
-@pytest.mark.xdist_group("mjx_touchdown")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_leaves_the_landing_foot_at_rest(biped12, landing):
     jac = jax.jit(impact.foot_jacobian, static_argnums=2)(biped12.floating, landing.floating_q, "foot2")
     assert float(jnp.linalg.norm(jac @ landing.floating_qd_before)) > 0.1
     np.testing.assert_allclose(jac @ landing.floating_qd_after, 0.0, atol=EXACT)
 
 
-@pytest.mark.xdist_group("mjx_touchdown")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_momentum_balance(biped12, landing):
     """M (qd+ - qd-) = J^T Lambda, and the linear momentum jumps by the impulse."""
-    floating, qf = biped12.floating, landing.floating_q
-    mass = hs.mass_matrix(floating, qf)
-    jac = impact.foot_jacobian(floating, qf, "foot2")
-    jump = mass @ (landing.floating_qd_after - landing.floating_qd_before)
+    floating = biped12.floating
+
+    @jax.jit  # one program: op by op, MJX compiles each operation alone (twice the time)
+    def jumps(qf, before, after):
+        com_velocity = lambda qd: jax.jvp(functools.partial(hs.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
+        return (hs.mass_matrix(floating, qf) @ (after - before), impact.foot_jacobian(floating, qf, "foot2"),
+                jnp.sum(floating.body_mass) * (com_velocity(after) - com_velocity(before)))
+    jump, jac, momentum_jump = jumps(landing.floating_q, landing.floating_qd_before, landing.floating_qd_after)
     np.testing.assert_allclose(jump, jac.T @ landing.impulse, atol=EXACT)
-    com_velocity = lambda qd: jax.jvp(functools.partial(hs.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
-    total = jnp.sum(floating.body_mass)
-    momentum_jump = total * (com_velocity(landing.floating_qd_after) - com_velocity(landing.floating_qd_before))
     np.testing.assert_allclose(momentum_jump[jnp.array([0, 2])], landing.impulse, atol=EXACT)
 
 
-@pytest.mark.xdist_group("mjx_touchdown")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
     qf_after = landing.floating_qd_after
     # New leg 1 is old leg 2: the new stance knee rate is old knee2's post-impact rate, and so on.
@@ -250,7 +261,7 @@ def _c_rollout(mj_model, q0, qd0, controls):
     return np.array(states)
 
 
-@pytest.mark.xdist_group("mjx_rollout")
+@pytest.mark.xdist_group("mjx_quickstart")
 def test_mjx_matches_mujoco_c_pinned_rollout(biped12, rollout):
     mj_model = robots.load_mj_model("biped5_pinned_12kg")
     rng = np.random.default_rng(0)
@@ -306,10 +317,10 @@ def _directional_derivatives(value_and_grad, params, seed, directions=3):
 @pytest.mark.slow
 @pytest.mark.xdist_group("mjx_gradient")
 def test_rollout_gradient_matches_central_finite_differences(mjx_rollout_gradient):
-    """d/d(q0, qd0, controls) of a cost of a whole rollout (20 steps in float64), the swing foot's
-    position and velocity at its end and the ground reaction recomputed there (MJX's forward kinematics
-    and Newton-Euler pass), along random directions; the program the chain's gradient is compared with
-    in test_planar_chain."""
+    """d/d(q0, qd0, controls) of a cost of a whole rollout (20 steps in float64: states, torques, MJX's
+    Newton-Euler ground force per step) and the swing foot's position and velocity at its end (MJX's
+    forward kinematics), along random directions; the program the chain's gradient is compared with in
+    test_planar_chain."""
     q0, qd0 = map(jnp.asarray, GRADIENT_START)
     params = (q0, qd0, jnp.asarray(np.random.default_rng(2).normal(size=(GRADIENT_STEPS, 4))))
     analytic, finite = _directional_derivatives(mjx_rollout_gradient, params, seed=2)
@@ -322,13 +333,10 @@ def test_touchdown_gradient_matches_finite_differences(biped12):
     def impact_cost(qd):
         result = impact.touchdown(biped12, Q, qd)
         return jnp.sum(result.qd ** 2) + jnp.sum(result.impulse) + result.old_stance_foot_velocity[1]
-    value_and_grad = jax.jit(jax.value_and_grad(impact_cost))  # one compiled program for both
-    gradient = value_and_grad(QD)[1]
-    value_fn = lambda qd: value_and_grad(qd)[0]  # noqa: E731
-    epsilon = 1e-6
-    finite = jnp.array([(value_fn(QD + epsilon * e) - value_fn(QD - epsilon * e)) / (2 * epsilon)
-                        for e in jnp.eye(5)])
-    np.testing.assert_allclose(gradient, finite, rtol=1e-6, atol=1e-8)
+    # five random directions span the gradient's five components
+    analytic, finite = _directional_derivatives(jax.jit(jax.value_and_grad(impact_cost)), QD, seed=4, directions=5)
+    assert np.all(np.abs(finite) > 1e-3)
+    np.testing.assert_allclose(analytic, finite, rtol=1e-6, atol=1e-8)
 
 
 # ----------------------------------------------------------------------------- bad input

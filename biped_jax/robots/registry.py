@@ -64,9 +64,17 @@ def load_mj_model(name: str) -> mujoco.MjModel:
 
 
 def put_mjx_model(mj_model: mujoco.MjModel):
-    """The MJX model (JAX implementation, the one with autodiff) of a MuJoCo model."""
+    """The MJX model (JAX implementation, the one with autodiff) of a MuJoCo model.
+
+    Its arrays are left uncommitted to a device, like every array made by ``jnp.array``: ``mjx.put_model``
+    commits them, and jit compiles a second program (another persistent-cache entry) for the same
+    computation when committed and uncommitted arguments meet in other combinations (a rollout of
+    ``with_timestep(model, dt)``, a touchdown from a rollout's end state)."""
+    import jax
+    import numpy as np
     mjx = import_mjx()
-    return mjx.put_model(mj_model, impl="jax")
+    model = mjx.put_model(mj_model, impl="jax")
+    return jax.tree.map(lambda x: jax.numpy.asarray(np.asarray(x)) if isinstance(x, jax.Array) else x, model)
 
 
 def load_mjx_model(name: str):
