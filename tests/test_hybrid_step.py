@@ -231,17 +231,18 @@ def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
 # ----------------------------------------------------------------------------- variants agree
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("test_design")  # jit(pinned_to_floating) and the floating mass matrix of test_design
 def test_pinned_and_floating_variants_agree(biped12):
     """With the foot pinned, the floating model reduces to the pinned one: G^T M_f G = M_p and
-    G^T grav_f = grav_p, with G = d q_floating / d q_pinned."""
+    G^T grav_f = grav_p, with G = d q_floating / d q_pinned (column i: the floating velocity of a unit
+    velocity of pinned joint i, :func:`impact.pinned_to_floating` being the position map's JVP)."""
     pinned, floating = biped12.pinned, biped12.floating
-    to_floating = lambda q: impact.pinned_to_floating(pinned, q, jnp.zeros(5))[0]  # noqa: E731
-    g = jax.jacfwd(to_floating)(Q)
-    qf = to_floating(Q)
-    np.testing.assert_allclose(g.T @ hs.mass_matrix(floating, qf) @ g, hs.mass_matrix(pinned, Q),
-                               atol=EXACT)
-    np.testing.assert_allclose(g.T @ hs.generalized_gravity(floating, qf),
-                               hs.generalized_gravity(pinned, Q), atol=1e-9)
+    to_floating = jax.jit(impact.pinned_to_floating)
+    qf = to_floating(pinned, Q, np.zeros(5))[0]
+    g = jnp.stack([to_floating(pinned, Q, e)[1] for e in np.eye(5)], axis=1)
+    mass_matrix, gravity = jax.jit(hs.mass_matrix), jax.jit(hs.generalized_gravity)
+    np.testing.assert_allclose(g.T @ mass_matrix(floating, qf) @ g, mass_matrix(pinned, Q), atol=EXACT)
+    np.testing.assert_allclose(g.T @ gravity(floating, qf), gravity(pinned, Q), atol=1e-9)
 
 
 # ----------------------------------------------------------------------------- MJX against MuJoCo C
