@@ -25,6 +25,25 @@ def test_committed_models_match_generators():
         assert (directory / name).read_text() == text, f"{name} is stale: run python -m biped_jax.robots.mjcf"
 
 
+def test_a_model_and_its_variants_are_one_program(biped12):
+    """jit specialises on whether arguments are committed to a device (``mjx.put_model`` commits, ``jnp.array``
+    does not), so a model whose arrays were committed gave a second program for the same computation
+    wherever an uncommitted leaf or state met it (``with_timestep``, a rollout's end state): the loaded
+    models are uncommitted, and the rollout of the model, of its ``with_timestep`` and ``with_design``
+    variants lowers to one program (traced, not compiled), which a committed copy does not."""
+    from biped_jax.dynamics import hybrid_step as hs
+    for model in (biped12.pinned, biped12.floating, robots.load_mjx_model("donald")):
+        assert not [x for x in jax.tree.leaves(model) if isinstance(x, jax.Array) and x.committed]
+    state, controls = np.zeros(5), np.zeros((3, 4))
+    lowered = lambda model: jax.jit(hs.stance_rollout).lower(model, state, state, controls).as_text()  # noqa: E731
+    program = lowered(biped12.pinned)
+    assert lowered(hs.with_timestep(biped12.pinned, 1e-3)) == program
+    assert lowered(hs.with_design(biped12, hs.planar_design("18kg")).pinned) == program
+    committed = jax.tree.map(lambda x: jax.device_put(x, jax.devices()[0]) if isinstance(x, jax.Array) else x,
+                             biped12.pinned)
+    assert lowered(committed) != program
+
+
 @pytest.mark.parametrize("name", sorted(robots.ROBOTS))
 @pytest.mark.xdist_group("mjx_forward")  # the same jit(mjx.forward) programs
 def test_model_loads_and_steps_in_mujoco_and_mjx(name):
