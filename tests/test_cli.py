@@ -1,6 +1,10 @@
-"""The heuristic-step command writes its files, and the numbers in them hang together."""
+"""The command line: the heuristic-step command writes its files and the numbers in them hang together,
+the other commands at short settings, bad arguments, and the compilation cache they configure."""
 
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -154,3 +158,17 @@ def test_the_xla_slow_compile_alarm_is_replaced_by_one_line_and_errors_pass():
     assert not any("Very slow compile" in line or line.startswith("****") for line in lines), lines
     assert lines.count("E0000 a real error") == 1 and lines.count("python error line") == 1
     assert sum("a compilation is taking minutes" in line for line in lines) == 2
+
+
+def test_the_compilation_cache_can_be_moved(tmp_path):
+    """`configure_jax` keeps the cache folder's path out of JAX's cache keys (by default JAX writes the GPU
+    autotuning cache's folder into every key, so a cache copied elsewhere never hit): one program run
+    with the cache in two folders gets the same entry in both."""
+    script = ("from biped_jax.commands import configure_jax; configure_jax(); import jax; "
+              "jax.jit(lambda x: 2.0 * x + 1.0)(1.0)")
+    entries = []
+    for folder in (tmp_path / "here", tmp_path / "moved" / "elsewhere"):
+        subprocess.run([sys.executable, "-c", script], env={**os.environ, "BIPED_JAX_CACHE": str(folder)},
+                       check=True, timeout=300)
+        entries.append(sorted(p.name for p in folder.iterdir() if p.name.startswith("jit_")))
+    assert entries[0] and entries[0] == entries[1]

@@ -71,10 +71,11 @@ def put_mjx_model(mj_model: mujoco.MjModel):
     computation when committed and uncommitted arguments meet in other combinations (a rollout of
     ``with_timestep(model, dt)``, a touchdown from a rollout's end state)."""
     import jax
+    import jax.numpy as jnp
     import numpy as np
     mjx = import_mjx()
     model = mjx.put_model(mj_model, impl="jax")
-    return jax.tree.map(lambda x: jax.numpy.asarray(np.asarray(x)) if isinstance(x, jax.Array) else x, model)
+    return jax.tree.map(lambda x: jnp.asarray(np.asarray(x)) if isinstance(x, jax.Array) else x, model)
 
 
 def load_mjx_model(name: str):
