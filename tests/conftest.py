@@ -92,14 +92,13 @@ def paper_solutions(short_solver):
 
 
 #: The costliest xdist groups first (pytest-xdist hands out groups in collection order with
-#: --no-loadscope-reorder): the last group to start should be a short one. Seconds of compiling, one process
-#: on an empty cache, measured 2026-12-03 (tests/conftest.py's BIPED_JAX_TEST_COMPILES, `-n0`), regrouped for
-#: this commit: the quickstart's programs and single support about 55, the gait 44, co-design 41, the
-#: rollout gradient 40, the rest of the hybrid step 35, the command line 35, SLSQP 31, the planar chain 28,
-#: mjx.forward 25, the rest under 25.
-HEAVY_FIRST = ("mjx_quickstart", "test_gait", "test_codesign", "mjx_gradient", "test_hybrid_step", "test_cli",
-               "test_sqp", "test_planar_chain", "mjx_forward", "test_design", "test_humanoid", "donald",
-               "test_readme", "test_augmented_lagrangian", "test_models")
+#: --no-loadscope-reorder): the last group to start should be a short one. Seconds of compiling on an empty
+#: cache, two workers, measured 2026-12-03 (commit c0b4a4c, BIPED_JAX_TEST_COMPILES): the quickstart's
+#: programs and single support 97, the gait 84, the rollout gradient 62, mjx.forward 54, the design (with the
+#: variants check) 43, DONALD 43, the command line 40, SLSQP 39, the humanoid 29, the rest under 26.
+HEAVY_FIRST = ("mjx_quickstart", "test_gait", "mjx_gradient", "mjx_forward", "test_design", "donald", "test_cli",
+               "test_sqp", "test_humanoid", "test_hybrid_step", "test_codesign", "test_readme",
+               "test_augmented_lagrangian", "test_planar_chain", "test_models")
 
 
 @pytest.hookimpl(tryfirst=True)

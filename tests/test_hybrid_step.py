@@ -58,11 +58,8 @@ def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollo
 
     @jax.jit
     def energy(model, q, qd):
-        def one(q, qd):
-            state = planar_chain.kinematics(chain, model, q, qd)
-            potential = -jnp.sum(model.body_mass[1:] * (state.com @ model.opt.gravity[jnp.array([0, 2])]))
-            return 0.5 * qd @ planar_chain.mass_matrix(chain, model, state) @ qd + potential
-        return jax.vmap(one)(q, qd)
+        return jax.vmap(lambda q, qd: planar_chain.mechanical_energy(
+            chain, model, planar_chain.kinematics(chain, model, q, qd), qd))(q, qd)
 
     errors = {}
     for dt, steps in ((1e-3, ROLLOUT_STEPS // 2), (5e-4, ROLLOUT_STEPS)):

@@ -50,7 +50,7 @@ def test_structure_of_the_pinned_biped(biped12):
 def test_every_quantity_equals_mjx(designed_biped, seed):
     """The gait rollout's two strategies (:mod:`biped_jax.dynamics.stance`: what the rollout reads,
     method by method) agree at random states: mass matrix, bias force, stance force, gait sites; and the
-    chain's forward dynamics is MJX's."""
+    chain's forward dynamics and mechanical energy are MJX's."""
     designed = designed_biped.pinned
     chain_dynamics, mjx_dynamics = stance.ChainDynamics(designed_biped), stance.MjxDynamics(designed_biped)
     rng = np.random.default_rng(seed)
@@ -69,6 +69,8 @@ def test_every_quantity_equals_mjx(designed_biped, seed):
     assert float(jnp.linalg.norm(reference_force)) > 1.0
     np.testing.assert_allclose(force, reference_force, atol=1e-9)
     np.testing.assert_allclose(sites, reference_sites, atol=1e-14)
+    np.testing.assert_allclose(planar_chain.mechanical_energy(chain_dynamics.chain, designed, state, qd),
+                               hs.mechanical_energy(designed, q, qd), rtol=1e-12)
     foot1 = mjx.name2id(designed, hs.robots.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
     np.testing.assert_allclose(planar_chain.site_positions(chain_dynamics.chain, designed, state, ("foot1",))[0],
                                data.site_xpos[foot1][jnp.array([0, 2])], atol=1e-14)

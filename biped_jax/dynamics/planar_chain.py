@@ -193,6 +193,13 @@ def bias_force(chain: PlanarChain, model, state: ChainState, qd: jax.Array) -> j
     return jnp.einsum("i,iaj,ia->j", mass, state.com_jacobian, acceleration) + model.dof_damping * qd
 
 
+def mechanical_energy(chain: PlanarChain, model, state: ChainState, qd: jax.Array) -> jax.Array:
+    """Kinetic plus gravitational potential energy of the chain at ``state`` (of (q, qd)), J (scalar):
+    :func:`biped_jax.dynamics.hybrid_step.mechanical_energy` in closed form."""
+    potential = -jnp.sum(model.body_mass[1:] * (state.com @ _gravity(model)))
+    return 0.5 * qd @ mass_matrix(chain, model, state) @ qd + potential
+
+
 def root_force(chain: PlanarChain, model, state: ChainState, qdd: jax.Array) -> jax.Array:
     """Force (F_x, F_z) the world exerts on the root body through its hinge, (2,), N: the rate of
     change of the chain's linear momentum less gravity."""
