@@ -309,9 +309,14 @@ def joule_residuals(joint_torque: jax.Array, joint_speed: jax.Array, drives: Joi
     return jnp.sqrt(drives.resistance * dt) * torque_at_motor / drives.torque_constant
 
 
+def required_voltage(joint_torque: jax.Array, joint_speed: jax.Array, drives: JointDrives) -> jax.Array:
+    """The terminal voltage V each joint's motor needs, per sample and joint, V (signed); shapes as
+    :func:`joule_residuals`."""
+    torque_at_motor = smooth_motor_torque(joint_torque, joint_speed, drives.ratio, drives.efficiency)
+    return voltage(torque_at_motor, motor_speed(joint_speed, drives.ratio), drives)
+
+
 def voltage_excess(joint_torque: jax.Array, joint_speed: jax.Array, drives: JointDrives) -> jax.Array:
     """|V| - V_s per sample and joint, V (<= 0: the operating point lies under the speed-torque line
     at the supply voltage); shapes as :func:`joule_residuals`."""
-    torque_at_motor = smooth_motor_torque(joint_torque, joint_speed, drives.ratio, drives.efficiency)
-    needed = voltage(torque_at_motor, motor_speed(joint_speed, drives.ratio), drives)
-    return jnp.abs(needed) - drives.supply_voltage
+    return jnp.abs(required_voltage(joint_torque, joint_speed, drives)) - drives.supply_voltage

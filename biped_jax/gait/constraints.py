@@ -61,12 +61,20 @@ def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: Ga
         "knee_range": jnp.concatenate([-knees.ravel(), (knees - settings.knee_max).ravel()]),
         "vertical_force": -fz,
         "friction_cone": jnp.concatenate([fx - settings.friction * fz, -fx - settings.friction * fz]),
-        "torque_bound": (jnp.abs(tr.u) - settings.torque_bound).ravel(),
-        "power_limit": (jnp.abs(power) - model.power_limit).ravel(),
+        "torque_bound": _two_sided(tr.u, settings.torque_bound),
+        "power_limit": _two_sided(power, model.power_limit),
         "impact_impulse": jnp.array([-lz, lx - settings.friction * lz, -lx - settings.friction * lz]),
         "liftoff": -impact.old_stance_foot_velocity[1:],
-        "voltage": drive_model.voltage_excess(tr.u, tr.joint_speed, model.drives).ravel(),
+        "voltage": _two_sided(drive_model.required_voltage(tr.u, tr.joint_speed, model.drives),
+                              model.drives.supply_voltage),
     }
+
+
+def _two_sided(value, bound):
+    """|value| <= bound as the two smooth rows value - bound and -value - bound (flattened): |value|
+    has a kink at 0, where a row far from active would still make a Newton model's dual residual jump
+    by its multiplier times its gradient."""
+    return jnp.concatenate([(value - bound).ravel(), (-value - bound).ravel()])
 
 
 _SCALES = {"m": LENGTH_SCALE, "rad": 1.0, "rad/s": RATE_SCALE, "m/s": LENGTH_SCALE, "N": FORCE_SCALE,

@@ -1,0 +1,487 @@
+"""A batched primal-dual interior-point solver in JAX: one compiled program solves B problems of one shape.
+
+    minimise f(x; p)  subject to  h(x; p) = 0,  g(x; p) <= 0,
+
+the constraints scaled to order one by the caller. The method is IPOPT's (Waechter and Biegler, "On the
+implementation of an interior-point filter line-search algorithm for large-scale nonlinear programming",
+Math. Prog. 106, 2006) and its filter line search:
+
+- slacks s > 0 turn g(x) <= 0 into g(x) + s = 0, and the barrier -mu sum(log s) keeps them positive; mu
+  falls (monotone, Fiacco-McCormick) each time the barrier problem is solved to kappa_eps mu;
+- every iteration takes one Newton step on the barrier problem's KKT conditions with the exact Hessian
+  of the Lagrangian and the exact constraint Jacobians (:mod:`biped_jax.optim.exact_derivatives`: one
+  forward-over-reverse pass, no finite differences), the slacks and inequality multipliers eliminated, so
+  that one dense (n + m_h) system remains per problem (a few hundred unknowns for the gait);
+- inertia correction: that system, with a small regularisation -delta_c I of its equality block, has the
+  right inertia exactly when the matrix W + J_g^T S^-1 Z J_g + delta_w I + J_h^T J_h / delta_c is
+  positive definite, which one Cholesky factorisation tells; delta_w grows until it is (IPOPT's rule);
+- the fraction-to-the-boundary rule keeps s and z positive; a backtracking filter line search accepts a
+  step that lowers the constraint violation theta = |h|_1 + |g + s|_1 or the barrier objective
+  phi = f - mu sum(log s) enough and is not dominated by an earlier iterate (the filter; Armijo on phi
+  where theta is already small), with one second-order correction of the first trial (against the
+  Maratos effect on curved constraints). A problem whose line search keeps failing stops (``stalled``,
+  or ``infeasible`` with its violation: there is no feasibility restoration phase).
+
+Batching is ``vmap`` over the problems of one ``jit``-compiled loop (``lax.while_loop``): a problem that
+has finished keeps its state while the others go on. The iterations run in blocks of
+:attr:`InteriorPointOptions.block` on the device, between which the caller sees the progress (and may
+stop). With several devices the batch is sharded over them (``jax.sharding``, the batch axis split).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import time
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax.optim import exact_derivatives, nlp
+
+#: Per-problem outcome codes inside the compiled loop (``status`` strings outside).
+_RUNNING, _CONVERGED, _ACCEPTABLE, _STALLED, _LOCALLY_INFEASIBLE, _NOT_FINITE = range(6)
+
+
+@dataclasses.dataclass(frozen=True)
+class InteriorPointOptions:
+    """Settings of :func:`solve` (defaults are IPOPT's where it has the same setting).
+
+    Attributes:
+      tolerance: the KKT error at which a problem is ``converged``: the largest of the scaled dual
+        infeasibility |grad L|_inf / s_d, the constraint violation max(|h|_inf, |g + s|_inf) and the
+        complementarity |s z|_inf / s_c (IPOPT's ``tol`` with its scalings s_d, s_c).
+      feasibility: the largest scaled violation max(|h|_inf, max(g, 0)) a converged problem may keep.
+      acceptable_tolerance, acceptable_iterations: a problem whose KKT error stays within the former for
+        the latter consecutive iterations (and feasible within ``feasibility``) is converged too
+        (IPOPT's "acceptable" end).
+      max_iterations: iterations at most.
+      block: iterations per call of the compiled loop (progress is reported between blocks).
+      mu_initial: the first barrier parameter (smaller for a warm start near an optimum).
+      slack_push: the smallest initial slack, so that a start on an active inequality begins inside.
+      objective_scale: the objective is multiplied by this inside the solver (multipliers and results
+        are returned for the unscaled problem): IPOPT scales an objective whose gradient is large.
+      equality_regularisation: the smallest diagonal entry of the equality Jacobian's triangular factor,
+        relative to its largest (where the equality Jacobian loses rank).
+      max_backtracks: halvings of the step at most before an iteration counts as a failed line search.
+      max_failures: consecutive failed line searches before a problem stops (``stalled`` or
+        ``infeasible``).
+      infeasible_above: a problem that stops with a larger scaled violation is ``infeasible``.
+    """
+
+    tolerance: float = 1e-8
+    feasibility: float = 1e-8
+    acceptable_tolerance: float = 1e-6
+    acceptable_iterations: int = 10
+    max_iterations: int = 300
+    block: int = 10
+    mu_initial: float = 0.1
+    slack_push: float = 1e-2
+    objective_scale: float = 1.0
+    equality_regularisation: float = 1e-10
+    max_backtracks: int = 40
+    max_failures: int = 5
+    infeasible_above: float = 1e-3
+
+    def __post_init__(self):
+        for name in ("tolerance", "feasibility", "acceptable_tolerance", "mu_initial", "slack_push",
+                     "objective_scale", "equality_regularisation", "infeasible_above"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < np.inf:
+                raise ValueError(f"InteriorPointOptions.{name} must be a positive number, got {value!r}")
+        for name in ("acceptable_iterations", "max_iterations", "block", "max_backtracks", "max_failures"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"InteriorPointOptions.{name} must be a positive integer, got {value!r}")
+
+
+# IPOPT's constants (Waechter and Biegler 2006, Sec. 2-3), not options there either.
+_S_MAX = 100.0          # scaling threshold of the dual infeasibility and complementarity
+_KAPPA_EPS = 10.0       # the barrier problem is solved when its error is within kappa_eps mu
+_KAPPA_MU, _THETA_MU = 0.2, 1.5   # mu <- max(tol / 10, min(kappa_mu mu, mu^theta_mu))
+_TAU_MIN = 0.99         # fraction to the boundary
+_KAPPA_SIGMA = 1e10     # z stays within [mu / (kappa s), kappa mu / s]
+_DELTA_FIRST, _DELTA_MIN, _DELTA_MAX = 1e-4, 1e-20, 1e40
+_GROW_FIRST, _GROW, _SHRINK = 100.0, 8.0, 1.0 / 3.0
+_ARMIJO = 1e-4
+_GAMMA_THETA, _GAMMA_PHI, _GAMMA_ALPHA = 1e-5, 1e-8, 0.05   # the filter's margins, the smallest step
+_S_THETA, _S_PHI, _SWITCH = 1.1, 2.3, 1.0                      # the switching condition
+_FILTER_SIZE = 32       # filter entries kept (the oldest is replaced)
+
+
+class State(NamedTuple):
+    """One problem's iterate and bookkeeping (a batch: every leaf with a leading dimension B)."""
+
+    x: jax.Array
+    s: jax.Array
+    y: jax.Array
+    z: jax.Array
+    mu: jax.Array
+    filter_theta: jax.Array
+    filter_phi: jax.Array
+    filter_next: jax.Array
+    theta_min: jax.Array
+    theta_max: jax.Array
+    delta: jax.Array
+    f: jax.Array
+    h: jax.Array
+    g: jax.Array
+    error: jax.Array
+    stationarity: jax.Array
+    iteration: jax.Array
+    acceptable: jax.Array
+    failures: jax.Array
+    evaluations: jax.Array
+    code: jax.Array
+
+
+def initial_state(problem: nlp.ConstrainedProblem, options: InteriorPointOptions, x0, params, y0, z0) -> State:
+    """The state at x0 (n,): slacks max(-g, slack_push), inequality multipliers z0 where given (> 0)
+    else mu / s, equality multipliers y0 (zero for a cold start)."""
+    f, h, g = problem.evaluate(x0, params)
+    mu = jnp.asarray(options.mu_initial, x0.dtype)
+    s = jnp.maximum(-g, options.slack_push)
+    z = jnp.where(z0 > 0, z0 * options.objective_scale, mu / s)
+    theta = _theta(h, g, s)
+    return State(x=x0, s=s, y=y0 * options.objective_scale, z=z, mu=mu,
+                 filter_theta=jnp.full(_FILTER_SIZE, jnp.inf, x0.dtype), filter_phi=jnp.full(_FILTER_SIZE, jnp.inf, x0.dtype),
+                 filter_next=jnp.zeros((), jnp.int32), theta_min=1e-4 * jnp.maximum(1.0, theta),
+                 theta_max=1e4 * jnp.maximum(1.0, theta), delta=jnp.zeros((), x0.dtype), f=f, h=h, g=g, error=jnp.asarray(jnp.inf, x0.dtype),
+                 stationarity=jnp.asarray(jnp.inf, x0.dtype), iteration=jnp.zeros((), jnp.int32),
+                 acceptable=jnp.zeros((), jnp.int32), failures=jnp.zeros((), jnp.int32),
+                 evaluations=jnp.ones((), jnp.int32), code=jnp.asarray(_RUNNING, jnp.int32))
+
+
+def _norm_inf(a):
+    return jnp.max(jnp.abs(a), initial=0.0)
+
+
+def _kkt_errors(grad, h, g, s, y, z, mu):
+    """(scaled dual infeasibility, slack-form violation, scaled complementarity) at mu."""
+    count = y.size + z.size
+    s_d = jnp.maximum(_S_MAX, (jnp.sum(jnp.abs(y)) + jnp.sum(jnp.abs(z))) / max(count, 1)) / _S_MAX
+    s_c = jnp.maximum(_S_MAX, jnp.sum(jnp.abs(z)) / max(z.size, 1)) / _S_MAX
+    return _norm_inf(grad) / s_d, jnp.maximum(_norm_inf(h), _norm_inf(g + s)), _norm_inf(s * z - mu) / s_c
+
+
+def violation(h, g):
+    """max(|h|_inf, max(g, 0)) of one problem."""
+    return jnp.maximum(_norm_inf(h), jnp.max(jnp.maximum(g, 0.0), initial=0.0))
+
+
+def _factor(matrix, delta):
+    """Cholesky factor of matrix + delta I (NaN where not positive definite)."""
+    return jnp.linalg.cholesky(matrix + delta * jnp.eye(matrix.shape[0], dtype=matrix.dtype))
+
+
+def _inertia_corrected(matrix, delta_last, floor):
+    """(factor, delta): the smallest delta of IPOPT's sequence at which matrix + delta I is positive
+    definite: ``floor`` first (0 unless the last step failed); then from delta_last / 3, or 1e-4,
+    growing 8x (100x when the last iteration needed none)."""
+    factor = _factor(matrix, floor)
+    ok = jnp.all(jnp.isfinite(factor))
+    first = jnp.where(delta_last == 0.0, _DELTA_FIRST, jnp.maximum(_DELTA_MIN, _SHRINK * delta_last))
+    first = jnp.maximum(first, floor)
+
+    def cond(carry):
+        _, delta, ok = carry
+        return ~ok & (delta < _DELTA_MAX)
+
+    def body(carry):
+        _, delta, _ = carry
+        delta = jnp.where(delta <= floor, first, delta * jnp.where(delta_last == 0.0, _GROW_FIRST, _GROW))
+        factor = _factor(matrix, delta)
+        return factor, delta, jnp.all(jnp.isfinite(factor))
+
+    factor, delta, _ = jax.lax.while_loop(cond, body, (factor, floor, ok))
+    return factor, delta
+
+
+def _to_boundary(v, dv, tau):
+    """The largest step in (0, 1] that keeps v + step dv >= (1 - tau) v (v > 0)."""
+    return jnp.minimum(1.0, jnp.min(jnp.where(dv < 0, -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf), initial=jnp.inf))
+
+
+def _solve_factored(factor, rhs):
+    return jax.scipy.linalg.cho_solve((factor, True), rhs)
+
+
+def newton_solver(condensed, jac_h, delta_last, floor, regularisation):
+    """(solve, delta): ``solve(rhs_x, h) -> (dx, dy)`` of [[W_c + delta I, J_h^T], [J_h, 0]] [dx; dy] =
+    [rhs_x; -h], factorised once for several right-hand sides.
+
+    By the null-space method: J_h^T = [Y Z] [R; 0] (QR), so that J_h dx = -h fixes dx's part Y p_y and
+    the reduced Hessian Z^T W_c Z gives the rest. The system has the inertia of a step to a minimum
+    exactly when the reduced Hessian is positive definite, and Z^T (W_c + delta I) Z = Z^T W_c Z +
+    delta I (Z orthonormal), so delta grows until its Cholesky factorisation succeeds
+    (:func:`_inertia_corrected`) and nothing else is perturbed. R's diagonal is kept at least
+    ``regularisation`` times its largest entry, where J_h loses rank.
+    """
+    size, equalities = jac_h.shape[1], jac_h.shape[0]
+    if equalities == 0:
+        factor, delta = _inertia_corrected(condensed, delta_last, floor)
+        return (lambda rhs_x, h: (_solve_factored(factor, rhs_x), h)), delta
+    q, r = jnp.linalg.qr(jac_h.T, mode="complete")           # (n, n), (n, m_h)
+    r = r[:equalities]
+    diagonal = jnp.diag(r)
+    smallest = regularisation * jnp.maximum(jnp.max(jnp.abs(diagonal)), 1e-300)
+    r = r + jnp.diag(jnp.where(jnp.abs(diagonal) < smallest, jnp.where(diagonal < 0, -smallest, smallest) - diagonal, 0.0))
+    range_basis, null_basis = q[:, :equalities], q[:, equalities:]
+    reduced = null_basis.T @ condensed @ null_basis
+    factor, delta = _inertia_corrected(reduced, delta_last, floor)
+
+    def solve(rhs_x, h):
+        p_y = jax.scipy.linalg.solve_triangular(r, -h, trans="T", lower=False)
+        dx_range = range_basis @ p_y
+        p_z = _solve_factored(factor, null_basis.T @ (rhs_x - condensed @ dx_range)) if size > equalities \
+            else jnp.zeros(0, rhs_x.dtype)
+        dx = dx_range + null_basis @ p_z
+        dy = jax.scipy.linalg.solve_triangular(r, range_basis.T @ (rhs_x - condensed @ dx - delta * dx), lower=False)
+        return dx, dy
+    return solve, delta
+
+
+def _theta(h, g, s):
+    """The constraint violation of the slack form, |h|_1 + |g + s|_1."""
+    return jnp.sum(jnp.abs(h)) + jnp.sum(jnp.abs(g + s))
+
+
+def _phi(weight, f, s, mu):
+    """The barrier objective w f - mu sum(log s)."""
+    return weight * f - mu * jnp.sum(jnp.log(s))
+
+
+def _filter_accepts(theta_t, phi_t, theta, phi, alpha, slope, st: State):
+    """(acceptable, f-type) of a trial point (Waechter and Biegler 2006, Sec. 2.3): not dominated by
+    the filter, below theta_max, and either Armijo on phi where the switching condition holds and theta
+    is small (f-type: the filter is not augmented), or a sufficient decrease of theta or phi."""
+    switching = (slope < 0) & (alpha * (-jnp.minimum(slope, 0.0)) ** _S_PHI > _SWITCH * theta ** _S_THETA)
+    f_type = switching & (theta <= st.theta_min)
+    armijo = phi_t <= phi + _ARMIJO * alpha * slope
+    decrease = (theta_t <= (1 - _GAMMA_THETA) * theta) | (phi_t <= phi - _GAMMA_PHI * theta)
+    dominated = jnp.any((theta_t >= st.filter_theta) & (phi_t >= st.filter_phi))
+    ok = jnp.isfinite(theta_t) & jnp.isfinite(phi_t) & (theta_t <= st.theta_max) & ~dominated \
+        & jnp.where(f_type, armijo, decrease)
+    return ok, f_type & armijo
+
+
+def _iterate(problem, options, structure, params, st: State) -> State:
+    """One interior-point iteration of one problem."""
+    w = options.objective_scale
+    f, h, g, grad, jac_h, jac_g, hessian = exact_derivatives.derivatives(
+        problem, st.x, params, w, st.y, st.z, structure)
+    dual, primal, complementarity = _kkt_errors(grad, h, g, st.s, st.y, st.z, 0.0)
+    error = jnp.maximum(jnp.maximum(dual, primal), complementarity)
+    feasible = violation(h, g) <= options.feasibility
+    acceptable = jnp.where((error <= options.acceptable_tolerance) & feasible, st.acceptable + 1, 0)
+    converged = (error <= options.tolerance) & feasible
+    accepted = acceptable >= options.acceptable_iterations
+
+    # the barrier parameter falls once its problem is solved to kappa_eps mu
+    barrier_error = jnp.maximum(jnp.maximum(*_kkt_errors(grad, h, g, st.s, st.y, st.z, st.mu)[::2]), primal)
+    mu = jnp.where(barrier_error <= _KAPPA_EPS * st.mu,
+                   jnp.maximum(options.tolerance / 10, jnp.minimum(_KAPPA_MU * st.mu, st.mu ** _THETA_MU)), st.mu)
+
+    # the filter starts afresh with every barrier problem
+    fresh = mu < st.mu
+    st = st._replace(filter_theta=jnp.where(fresh, jnp.inf, st.filter_theta),
+                     filter_phi=jnp.where(fresh, jnp.inf, st.filter_phi))
+
+    # Newton step on the barrier KKT system, slacks and z eliminated
+    s, z = st.s, st.z
+    sigma = z / s
+    condensed = hessian + jac_g.T @ (sigma[:, None] * jac_g)
+    floor = jnp.where(st.failures > 0, jnp.maximum(st.delta, _DELTA_FIRST) * _GROW_FIRST, 0.0)
+    newton, delta = newton_solver(condensed, jac_h, st.delta, floor, options.equality_regularisation)
+    tau = jnp.maximum(_TAU_MIN, 1.0 - mu)
+
+    def step(residual_h, residual_g):
+        """(dx, dy, ds, largest step) for constraint residuals (h, g + s) (the Newton step's, or a
+        second-order correction's)."""
+        dx, dy = newton(-(grad + jac_g.T @ (sigma * residual_g + mu / s - z)), residual_h)
+        ds = -residual_g - jac_g @ dx
+        return dx, dy, ds, _to_boundary(s, ds, tau)
+
+    dx, dy, ds, alpha_max = step(h, g + s)
+    theta, phi = _theta(h, g, s), _phi(w, f, s, mu)
+    slope = (grad - jac_h.T @ st.y - jac_g.T @ z) @ dx - mu * jnp.sum(ds / s)   # of phi along the step
+    alpha_min = _GAMMA_ALPHA * jnp.where(
+        slope < 0, jnp.minimum(_GAMMA_THETA, jnp.minimum(_GAMMA_PHI * theta / -jnp.minimum(slope, -1e-300),
+                                                         _SWITCH * theta ** _S_THETA / (-jnp.minimum(slope, -1e-300)) ** _S_PHI)),
+        _GAMMA_THETA)
+
+    def trial(alpha, dx, ds):
+        x_t, s_t = st.x + alpha * dx, s + alpha * ds
+        f_t, h_t, g_t = problem.evaluate(x_t, params)
+        ok, f_type = _filter_accepts(_theta(h_t, g_t, s_t), _phi(w, f_t, s_t, mu), theta, phi, alpha, slope, st)
+        return ok, f_type, (f_t, h_t, g_t)
+
+    # the full step, else one second-order correction of it, else backtracking along the Newton step
+    ok, f_type, values = trial(alpha_max, dx, ds)
+    h_full, g_full = values[1], values[2] + s + alpha_max * ds
+    dx_c, dy_c, ds_c, alpha_c = step(alpha_max * h + h_full, alpha_max * (g + s) + g_full)
+    ok_c, f_type_c, values_c = trial(alpha_c, dx_c, ds_c)
+    corrected = ~ok & ok_c & (_theta(*values[1:], s + alpha_max * ds) >= theta)
+    pick = lambda a, b: jnp.where(corrected, b, a)  # noqa: E731
+    dx, dy, ds, alpha0 = pick(dx, dx_c), pick(dy, dy_c), pick(ds, ds_c), pick(alpha_max, alpha_c)
+    ok, f_type = ok | corrected, pick(f_type, f_type_c)
+    values = jax.tree.map(pick, values, values_c)
+
+    def search_cond(carry):
+        _, alpha, ok, _, _ = carry
+        return ~ok & (alpha * 0.5 >= alpha_min)
+
+    def search_body(carry):
+        k, alpha, _, _, _ = carry
+        ok, f_type, values = trial(alpha * 0.5, dx, ds)
+        return k + 1, alpha * 0.5, ok, f_type, values
+
+    backtracks, alpha, ok, f_type, (f_t, h_t, g_t) = jax.lax.while_loop(
+        search_cond, search_body, (jnp.zeros((), jnp.int32), alpha0, ok, f_type, values))
+    alpha = jnp.where(ok, alpha, 0.0)
+    s_new = jnp.where(ok, s + alpha * ds, s)
+    dz = mu / s - z - sigma * ds
+    alpha_z = _to_boundary(z, dz, tau)
+    x_new, y_new = st.x + alpha * dx, st.y + alpha * dy
+    z_new = jnp.where(ok, z + alpha_z * dz, z)
+    z_new = jnp.clip(z_new, mu / (_KAPPA_SIGMA * s_new), _KAPPA_SIGMA * mu / s_new)
+    failures = jnp.where(ok, 0, st.failures + 1)
+    # an accepted step that is not f-type adds the current point (with margins) to the filter
+    augment = ok & ~f_type
+    slot = st.filter_next % _FILTER_SIZE
+    filter_theta = jnp.where(augment, st.filter_theta.at[slot].set((1 - _GAMMA_THETA) * theta), st.filter_theta)
+    filter_phi = jnp.where(augment, st.filter_phi.at[slot].set(phi - _GAMMA_PHI * theta), st.filter_phi)
+
+    stationarity = _norm_inf(grad) / w / jnp.maximum(1.0, jnp.abs(f))
+    finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(dx))
+    stopped = failures >= options.max_failures
+    infeasible = stopped & (violation(h, g) > options.infeasible_above)
+    code = jnp.select([~finite, converged, accepted, infeasible, stopped],
+                      [_NOT_FINITE, _CONVERGED, _ACCEPTABLE, _LOCALLY_INFEASIBLE, _STALLED], _RUNNING)
+    done = code != _RUNNING
+    # a finished problem keeps the point its verdict is about
+    keep = lambda old, new: jnp.where(done, old, new)  # noqa: E731
+    return State(x=keep(st.x, x_new), s=keep(s, s_new), y=keep(st.y, y_new), z=keep(z, z_new), mu=mu,
+                 filter_theta=filter_theta, filter_phi=filter_phi,
+                 filter_next=st.filter_next + augment.astype(jnp.int32), theta_min=st.theta_min,
+                 theta_max=st.theta_max, delta=delta,
+                 f=keep(f, jnp.where(ok, f_t, f)), h=keep(h, jnp.where(ok, h_t, h)), g=keep(g, jnp.where(ok, g_t, g)),
+                 error=error, stationarity=stationarity, iteration=st.iteration + 1, acceptable=acceptable,
+                 failures=failures, evaluations=st.evaluations + structure.colours + backtracks + 2,
+                 code=code.astype(jnp.int32))
+
+
+def _block(problem, options, structure, params, state: State, until) -> State:
+    """Iterations of one problem until it finishes or reaches iteration ``until``."""
+    return jax.lax.while_loop(lambda st: (st.code == _RUNNING) & (st.iteration < until),
+                              functools.partial(_iterate, problem, options, structure, params), state)
+
+
+@dataclasses.dataclass(frozen=True)
+class CompiledInteriorPoint:
+    """The jitted, vmapped programs of one problem and options: build once with :func:`compile_problem`
+    and reuse across solves of the same shape (``structure`` and ``params`` are arguments, so designs
+    and colourings of one shape share the programs)."""
+
+    problem: nlp.ConstrainedProblem
+    options: InteriorPointOptions
+    initial: Callable
+    block: Callable
+
+
+def compile_problem(problem: nlp.ConstrainedProblem, options: InteriorPointOptions = InteriorPointOptions()
+                    ) -> CompiledInteriorPoint:
+    """The interior point's programs for ``problem`` (compiled on first call)."""
+    initial = jax.jit(jax.vmap(functools.partial(initial_state, problem, options)))
+    block = jax.jit(jax.vmap(functools.partial(_block, problem, options), in_axes=(None, 0, 0, None)))
+    return CompiledInteriorPoint(problem, options, initial, block)
+
+
+_STATUS = {_RUNNING: nlp.ITERATION_LIMIT, _CONVERGED: nlp.CONVERGED, _ACCEPTABLE: nlp.CONVERGED,
+           _STALLED: nlp.STALLED, _LOCALLY_INFEASIBLE: nlp.INFEASIBLE, _NOT_FINITE: nlp.DIVERGED}
+
+
+def _status(code: int, final_violation: float, options: InteriorPointOptions) -> str:
+    if code == _RUNNING and final_violation > options.infeasible_above:
+        return nlp.INFEASIBLE
+    return _STATUS[code]
+
+
+def batch_sharding(batch: int):
+    """A sharding that splits the leading (batch) axis over every device JAX sees, or None on one
+    device or when the batch does not divide evenly."""
+    devices = jax.devices()
+    if len(devices) < 2 or batch % len(devices):
+        return None
+    mesh = jax.sharding.Mesh(np.array(devices), ("batch",))
+    return jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("batch"))
+
+
+def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOptions = InteriorPointOptions(),
+          structure: exact_derivatives.Structure | None = None, compiled: CompiledInteriorPoint | None = None,
+          multipliers: tuple[Any, Any] | None = None,
+          progress: Callable[[int, dict], None] | None = None) -> nlp.SolveResult:
+    """Solves a batch of B problems of one shape in one compiled program.
+
+    Args:
+      problem: f, h, g (constraints scaled to order one).
+      x0: starting points, shape (B, n).
+      params: per-problem data, leaves with leading dimension B.
+      options: solver settings.
+      structure: the derivatives' colouring (:func:`~biped_jax.optim.exact_derivatives.probe_structure`),
+        shared by the batch; None: dense (every column its own direction).
+      compiled: from :func:`compile_problem` with the same options, to reuse across calls.
+      multipliers: (y0 (B, m_h), z0 (B, m_g)) to warm-start with (of the unscaled problem; z0 <= 0 where
+        unknown); None: zero and mu / s.
+      progress: called after every block with (iteration, {"cost", "violation", "error", "mu": (B,),
+        "done": (B,) bool}).
+
+    Returns an :class:`~biped_jax.optim.nlp.SolveResult`: ``outer_iterations`` counts interior-point
+    iterations, ``gradients`` the problem evaluations (each derivative pass counted as its colours),
+    ``history`` one row per block; the multipliers are the unscaled problem's (f + lam_eq.h + lam_in.g).
+    """
+    started = time.perf_counter()
+    if compiled is None or compiled.options != options:
+        compiled = compile_problem(problem, options)
+    x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
+    if x0.ndim != 2:
+        raise ValueError(f"x0 must have shape (B, n), got shape {x0.shape}")
+    batch, size = x0.shape
+    f0, h0, g0 = jax.eval_shape(problem.evaluate, x0[0], jax.tree.map(lambda a: a[0], params))
+    if structure is None:
+        structure = exact_derivatives.dense_structure(size, h0.shape[0] + g0.shape[0])
+    if multipliers is None:
+        y0, z0 = jnp.zeros((batch,) + h0.shape, x0.dtype), jnp.zeros((batch,) + g0.shape, x0.dtype)
+    else:
+        y0, z0 = (jnp.asarray(m, x0.dtype) for m in multipliers)
+    sharding = batch_sharding(batch)
+    if sharding is not None:
+        x0, y0, z0, params = jax.device_put((x0, y0, z0, params), sharding)
+    state = compiled.initial(x0, params, y0, z0)
+    history = []
+    until = 0
+    while until < options.max_iterations:
+        until = min(until + options.block, options.max_iterations)
+        state = compiled.block(structure, params, state, jnp.asarray(until, jnp.int32))
+        row = {"cost": np.asarray(state.f), "violation": np.asarray(jax.vmap(violation)(state.h, state.g)),
+               "error": np.asarray(state.error), "mu": np.asarray(state.mu),
+               "gradients": np.asarray(state.evaluations), "penalty": np.zeros(batch),
+               "stationarity": np.asarray(state.stationarity), "done": np.asarray(state.code) != _RUNNING}
+        history.append(row)
+        if progress:
+            progress(int(np.max(np.asarray(state.iteration))), row)
+        if row["done"].all():
+            break
+    scale = options.objective_scale
+    viol = history[-1]["violation"]
+    codes = np.asarray(state.code)
+    history[-1]["x"] = np.asarray(state.x)
+    return nlp.SolveResult(
+        x=np.asarray(state.x), cost=np.asarray(state.f), equalities=np.asarray(state.h),
+        inequalities=np.asarray(state.g), violation=viol, stationarity=np.asarray(state.stationarity),
+        status=[_status(int(c), float(v), options) for c, v in zip(codes, viol)],
+        outer_iterations=np.asarray(state.iteration), gradients=np.asarray(state.evaluations),
+        wall_time_s=time.perf_counter() - started, history=history,
+        multipliers_eq=np.asarray(state.y) / scale, multipliers_in=np.asarray(state.z) / scale)
