@@ -1,16 +1,20 @@
-"""Co-design throughput: gait problems of different designs solved per second, by batch size.
+"""Co-design throughput: gait problems of different designs solved per second, the batched interior point
+against SLSQP one design after another, in the same run.
 
-Each batch holds B different designs (the paper's RE 25 42 V drive with gear ratios spread
-log-uniformly over 30-110:1 and total masses over 10-14 kg) at M2's speed and power limit, each solved
-from the heuristic start to convergence (or its status) by the library's batched augmented-Lagrangian
-solver: one compiled program per batch size. Compilation is timed apart (a first call of one outer
-iteration compiles every program), then the full solve (the throughput). The solver's options are the
-co-design studies' (``codesign_study.STUDY_OPTIONS``). Results are saved after every batch.
+Each batch holds B different designs (the paper's RE 25 42 V drive with gear ratios spread log-uniformly
+over 30-110:1 and total masses over 10-14 kg, paired at random) at M2's speed and power limit, each solved
+from the paper design's gait (the co-design studies' warm start, solved first from the heuristic start).
+The interior point solves each batch in one compiled program (``biped_jax.optim.interior_point``); its
+compile time is measured apart (a first call of one iteration), then the solve. SLSQP (the studies'
+``codesign.SOLVER_OPTIONS``) solves a sample of ``--sample`` designs of the largest batch one after
+another; its designs/s is its converged designs over its time, and each of the sample is compared with
+the interior point's optimum of the same design. Results are saved after every batch.
 
-    python benchmarks/codesign_throughput.py --batch 1 16 64
+    python benchmarks/codesign_throughput.py --batch 16 64 256 --sample 16
 """
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -29,55 +33,89 @@ def designs_for(batch: int):
             for n, m in zip(ratios, masses)]
 
 
-def measure(solver, batch: int) -> dict:
+def converged(solutions) -> int:
+    return sum(s.status == "converged" for s in solutions)
+
+
+def interior_point_batch(solver, batch: int, x_start) -> tuple[dict, list]:
     from biped_jax.codesign import problem as codesign
+    from biped_jax.studies import codesign as codesign_study
+    solver = solver.using(codesign_study.IP_WARM_OPTIONS)
     designs = designs_for(batch)
-    started = time.perf_counter()  # one outer iteration of two inner steps compiles every program
-    codesign.solve_designs(solver.with_options(max_outer=1, max_inner=2), designs, 0.555, 20.0)
+    x0 = np.tile(x_start, (batch, 1))
+    started = time.perf_counter()  # one iteration compiles every program
+    codesign.solve_designs(solver.with_options(max_iterations=1, block=1), designs, 0.555, 20.0, x0=x0)
     compile_s = time.perf_counter() - started
     started = time.perf_counter()
-    solutions = codesign.solve_designs(solver, designs, 0.555, 20.0, progress=lambda i, row: print(
-        f"  batch {batch}, outer iteration {i + 1}: {time.perf_counter() - started:.0f} s, largest scaled "
-        f"violation {np.max(row['violation']):.1e}, gradients per design up to {int(np.max(row['gradients']))}",
-        flush=True))
+    solutions = codesign.solve_designs(solver, designs, 0.555, 20.0, x0=x0, progress=lambda i, row: print(
+        f"  batch {batch}, iteration {i}: {time.perf_counter() - started:.0f} s, {int(np.sum(row['done']))} "
+        f"finished", flush=True))
     seconds = time.perf_counter() - started
-    converged = sum(s.status == "converged" for s in solutions)
-    return {"batch": batch, "compile_s": compile_s, "solve_s": seconds,
-            "designs_per_second": batch / seconds, "converged": converged,
-            "mean_gradients": float(np.mean([s.gradients for s in solutions])),
-            "statuses": sorted({s.status for s in solutions})}
+    count = converged(solutions)
+    return ({"solver": "interior point", "batch": batch, "compile_s": compile_s, "solve_s": seconds,
+             "converged": count, "converged_fraction": count / batch, "converged_designs_per_second": count / seconds,
+             "iterations_max": int(max(s.outer_iterations for s in solutions)),
+             "statuses": sorted({s.status for s in solutions})}, solutions)
+
+
+def slsqp_sample(solver, batch: int, sample: int, x_start, reference) -> dict:
+    from biped_jax.codesign import problem as codesign
+    designs = designs_for(batch)
+    picks = np.linspace(0, batch - 1, sample).round().astype(int)
+    started = time.perf_counter()
+    codesign.solve_designs(solver.with_options(max_iterations=1), designs[:1], 0.555, 20.0, x0=x_start[None])
+    compile_s = time.perf_counter() - started
+    started = time.perf_counter()
+    solutions = codesign.solve_designs(solver, [designs[b] for b in picks], 0.555, 20.0,
+                                       x0=np.tile(x_start, (sample, 1)))
+    seconds = time.perf_counter() - started
+    gaps = [(s.cost - reference[b].cost) / reference[b].cost for s, b in zip(solutions, picks)
+            if s.status == "converged" and reference[b].status == "converged"]
+    count = converged(solutions)
+    return {"solver": "SLSQP (one design after another)", "batch": sample, "of_batch": batch, "compile_s": compile_s,
+            "solve_s": seconds, "converged": count, "converged_designs_per_second": count / seconds,
+            "relative_gap_interior_point_minus_slsqp": [-g for g in gaps],
+            "largest_relative_gap": float(np.max(np.abs(gaps))) if gaps else None}
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 64])
+    parser.add_argument("--batch", type=int, nargs="+", default=[16, 64, 256])
+    parser.add_argument("--sample", type=int, default=16, help="designs SLSQP solves for the comparison")
     parser.add_argument("--spans", type=int, default=16, help="knot spans of the joint B-splines (default 16)")
-    parser.add_argument("--degree", type=int, default=3, help="B-spline degree (default 3)")
-    parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8)")
-    parser.add_argument("--dynamics", choices=("mjx", "chain"), default="chain",
-                        help="single-support dynamics (default chain, the co-design study's)")
+    parser.add_argument("--segments", type=int, default=16, help="shooting segments (default: one per span)")
+    parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8, the studies')")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
-    parser.add_argument("--name", default="codesign_throughput",
-                        help="results file stem, so runs of other batch sizes keep their own file")
+    parser.add_argument("--name", default="codesign_throughput", help="results file stem")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
+    from biped_jax.codesign import problem as codesign
     from biped_jax.gait import problem as gait
     from biped_jax.gait.solver import GaitSolver
-    from biped_jax.studies.codesign import STUDY_OPTIONS
-    settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
-                                dynamics=args.dynamics)
-    solver = GaitSolver(settings).with_options(**STUDY_OPTIONS)
-    rows = []
-    print(f"{'batch':>6s} {'compile s':>16s} {'solve s':>9s} {'designs/s':>10s} {'converged':>10s} "
-          f"{'gradients':>10s}", flush=True)
+    from biped_jax.studies import codesign as codesign_study
+    settings = gait.GaitSettings(spans=args.spans, segments=args.segments, substeps=args.substeps)
+    interior = GaitSolver(settings, codesign_study.IP_OPTIONS)
+    started = time.perf_counter()
+    reference, = codesign.solve_designs(interior, [codesign.catalogue_design()], 0.555, 20.0)
+    print(f"the paper's design from the heuristic start: {reference.status}, J = {reference.cost:.5f} J, "
+          f"{time.perf_counter() - started:.0f} s (compiling included)", flush=True)
+    rows, last = [], None
+    meta = {"spans": args.spans, "segments": args.segments, "substeps": args.substeps, "speed": 0.555,
+            "power_limit": 20.0, "float": "float64", "options": dataclasses.asdict(interior.options)}
     for batch in args.batch:
-        row = measure(solver, batch)
+        row, last = interior_point_batch(interior, batch, reference.x)
         rows.append(row)
-        print(f"{batch:6d} {row['compile_s']:16.1f} {row['solve_s']:9.1f} {row['designs_per_second']:10.3f} "
-              f"{row['converged']:6d}/{batch:<3d} {row['mean_gradients']:10.0f}", flush=True)
-        save_results(args.name, {"spans": args.spans, "degree": args.degree, "substeps": args.substeps,
-                                 "dynamics": args.dynamics, "speed": 0.555,
-                                             "power_limit": 20.0, "float": "float64"}, rows, args.out)
+        print(f"interior point, B = {batch}: {row['converged']}/{batch} converged in {row['solve_s']:.1f} s "
+              f"({row['converged_designs_per_second']:.2f} designs/s; compile {row['compile_s']:.0f} s)", flush=True)
+        save_results(args.name, meta, rows, args.out)
+    peer = slsqp_sample(interior.using(codesign.SOLVER_OPTIONS), args.batch[-1], args.sample, reference.x, last)
+    rows.append(peer)
+    ratio = rows[-2]["converged_designs_per_second"] / max(peer["converged_designs_per_second"], 1e-300)
+    rows.append({"ratio_interior_point_over_slsqp": ratio})
+    print(f"SLSQP: {peer['converged']}/{args.sample} in {peer['solve_s']:.1f} s "
+          f"({peer['converged_designs_per_second']:.3f} designs/s); interior point / SLSQP = {ratio:.1f}x; "
+          f"largest |J gap| over the sample {peer['largest_relative_gap']}", flush=True)
+    save_results(args.name, meta, rows, args.out)
 
 
 if __name__ == "__main__":

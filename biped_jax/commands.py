@@ -81,9 +81,11 @@ def kelly(out: Path, spans: int, degree: int, substeps: int) -> dict:
 
     from biped_jax.studies import kelly as benchmark
 
-    settings = dataclasses.replace(benchmark.KELLY_SETTINGS, spans=spans, degree=degree, substeps=substeps)
+    # a shooting segment per knot span, as the benchmark's own settings
+    settings = dataclasses.replace(benchmark.KELLY_SETTINGS, spans=spans, degree=degree, substeps=substeps,
+                                   segments=spans)
     started = time.perf_counter()
-    with live_progress(("outer iteration",)) as progress:
+    with live_progress(("interior-point iteration",)) as progress:
         record = benchmark.run_kelly(out, settings, progress)
     console.print(f"Kelly's five-link biped: {record['status']}, J = {record['cost']:.4g} N^2 m^2 s on "
                   f"{record['steps']} Runge-Kutta steps ({record['cost_coarse']:.4g} on {record['steps_coarse']}, "

@@ -19,6 +19,8 @@ from biped_jax.gait import verdict
 from biped_jax.optim import augmented_lagrangian as al
 from biped_jax.optim import nlp
 from biped_jax.optim import coloured
+from biped_jax.optim import exact_derivatives
+from biped_jax.optim import interior_point as ip
 from biped_jax.optim import limit_minimisation
 from biped_jax.optim import sqp
 from biped_jax.robots.specs import PLANAR_SPECS
@@ -132,6 +134,16 @@ class GaitSolver:
 
         self.problem = nlp.ConstrainedProblem.from_residuals(residuals)
 
+        def limit_problem(x_limit, model):  # (x, t): minimise t with every constraint at M_W = t M_W0
+            x, t = x_limit[:-1], x_limit[-1]
+            _, h, g = self.problem.evaluate(x, dataclasses.replace(model, power_limit=model.power_limit * t))
+            return t, h, g
+
+        self.limit_problem = nlp.ConstrainedProblem(limit_problem)
+        self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
+        self._structures = {}  # problem kind -> its derivatives' colouring (probed on first use)
+        self._value = jax.jit(self.problem.evaluate)
+
         self.compiled = al.compile_problem(self.problem)
         self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
         self._simulate = jax.jit(functools.partial(gait.simulate, biped=biped, settings=settings))
@@ -145,12 +157,14 @@ class GaitSolver:
         """A solver sharing this one's compiled functions with other solver options (of the same method)."""
         return self.using(dataclasses.replace(self.options, **changes))
 
-    def using(self, options: al.SolverOptions | sqp.SQPOptions) -> "GaitSolver":
+    def using(self, options: ip.InteriorPointOptions | al.SolverOptions | sqp.SQPOptions) -> "GaitSolver":
         """A solver sharing this one's compiled functions with ``options``; their type is the method:
+        :class:`~biped_jax.optim.interior_point.InteriorPointOptions` for the batched interior point,
         :class:`~biped_jax.optim.augmented_lagrangian.SolverOptions` for the batched augmented Lagrangian,
         :class:`~biped_jax.optim.sqp.SQPOptions` for SLSQP (one problem after another)."""
-        if not isinstance(options, (al.SolverOptions, sqp.SQPOptions)):
-            raise TypeError(f"options must be SolverOptions or SQPOptions, got {type(options).__name__}")
+        if not isinstance(options, (ip.InteriorPointOptions, al.SolverOptions, sqp.SQPOptions)):
+            raise TypeError("options must be InteriorPointOptions, SolverOptions or SQPOptions, got "
+                            f"{type(options).__name__}")
         other = object.__new__(GaitSolver)
         other.__dict__.update(self.__dict__)
         other.options = options
@@ -174,7 +188,24 @@ class GaitSolver:
                          "cost": np.array([f]), "violation": np.array([v])})
         return report
 
-    def _solve_batch(self, x0, batch, progress, names):
+    def _interior_point(self, kind: str, x0, batch, progress, multipliers=None) -> nlp.SolveResult:
+        """The batched interior point on the energy problem (``kind`` "energy") or the smallest power
+        limit's ("limit"), its colouring probed at the first problem's start and its programs compiled
+        on first use, both kept for later batches of the same shape."""
+        problem = self.problem if kind == "energy" else self.limit_problem
+        if kind not in self._structures:
+            first = jax.tree.map(lambda a: a[0], batch)
+            self._structures[kind] = exact_derivatives.probe_structure(
+                problem, np.asarray(x0[0]), first, linear_columns=() if kind == "energy" else (x0.shape[1] - 1,))
+        key = (kind, ip.loop_options(self.options))
+        if key not in self._interior:
+            self._interior[key] = ip.compile_problem(problem, self.options)
+        return ip.solve(problem, x0, batch, self.options, structure=self._structures[kind],
+                        compiled=self._interior[key], multipliers=multipliers, progress=progress)
+
+    def _solve_batch(self, x0, batch, progress, names, multipliers=None):
+        if isinstance(self.options, ip.InteriorPointOptions):
+            return self._interior_point("energy", x0, batch, progress, multipliers)
         if isinstance(self.options, sqp.SQPOptions):
             return sqp.solve(self.problem, x0, batch, self.options,
                              compiled=self._sqp_compiled(self.options),
@@ -190,34 +221,61 @@ class GaitSolver:
         return one_by_one(self._simulate_refined, x, models)
 
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
-              progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
-        """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts. With SQP
-        options ``progress`` gets (iteration, {"problem": b, "cost": (1,), "violation": (1,)}) per
-        SLSQP iteration of problem b (also "name" and "problems", the batch size)."""
+              progress: Callable[[int, dict], None] | None = None, multipliers=None) -> list[GaitSolution]:
+        """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts, and with the
+        interior point so do ``multipliers`` (equalities (B, m_h), inequalities (B, m_g): those of
+        solutions of the same space, such as a neighbouring problem's). With SQP options ``progress``
+        gets (iteration, {"problem": b, "cost": (1,), "violation": (1,)}) per SLSQP iteration of problem
+        b (also "name" and "problems", the batch size); with the interior point (iteration, row of (B,)
+        arrays: "cost", "violation", "error", "done") after every block of iterations."""
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        return self._report(names, models, self._solve_batch(x0, batch, progress, names))
+        return self._report(names, models, self._solve_batch(x0, batch, progress, names, multipliers))
 
     def minimise_power_limit(self, names: list[str], models: list[gait.GaitModel], x0,
                              progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
-        """The smallest power limit M_W at which each model walks: SLSQP on (x, M_W / M_W0) minimising
-        the limit (the epigraph form of the smallest largest joint power |qdot u| over feasible
-        gaits), from ``x0`` (B, n), gaits feasible at the models' own limits M_W0.
+        """The smallest power limit M_W at which each model walks: the interior point (all models in one
+        batch) or SLSQP on (x, M_W / M_W0) minimising the limit (the epigraph form of the smallest
+        largest joint power |qdot u| over feasible gaits), from ``x0`` (B, n), gaits feasible at the
+        models' own limits M_W0.
 
         Returns per model the gait found, as a :class:`GaitSolution` at the limit it keeps on both
         grids: ``power_limit_W`` is the larger of the limit reached on the solve grid (in
         ``refinement["solve_grid_limit_W"]``) and the gait's largest joint power on the refinement
         grid (the former alone for a solver without the refinement check), so that its status reads
         whether it is feasible (and grid independent) there; ``cost``
-        is that gait's J (not minimised). SLSQP only: a solver with augmented-Lagrangian options raises
-        TypeError (``solver.using(SQPOptions(...))`` makes one sharing the compiled rollouts)."""
+        is that gait's J (not minimised); the multipliers are those of the limit problem. A solver with
+        augmented-Lagrangian options raises TypeError (``solver.using(InteriorPointOptions(...))`` makes
+        one sharing the compiled rollouts)."""
         options = self.options
-        if not isinstance(options, sqp.SQPOptions):
-            raise TypeError("minimise_power_limit runs SLSQP: use solver.using(sqp.SQPOptions(...)), got options "
-                            f"of type {type(options).__name__}")
         batch = stack_tree(models)
         x0 = np.asarray(x0, dtype=float)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
+        if isinstance(options, ip.InteriorPointOptions):
+            result = self._interior_point("limit", jnp.asarray(start), batch, progress)
+        elif isinstance(options, sqp.SQPOptions):
+            result = self._slsqp_power_limit(names, models, batch, x0, start, progress)
+        else:
+            raise TypeError("minimise_power_limit runs the interior point or SLSQP: use solver.using("
+                            f"InteriorPointOptions(...)), got options of type {type(options).__name__}")
+        x = result.x[:, :-1]
+        solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
+        limits, fine = solve_grid, None
+        if self.check_refinement:
+            fine = self.simulate_refined(x, batch)
+            limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
+        at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
+        cost = np.array([float(self._value(jnp.asarray(x[b]), jax.tree.map(lambda a: a[b], batch))[0])
+                         for b in range(len(models))])  # J does not depend on the limit
+        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost), refined=fine)
+        for solution, limit in zip(solutions, solve_grid):
+            solution.refinement["solve_grid_limit_W"] = float(limit)
+        return solutions
+
+    def _slsqp_power_limit(self, names, models, batch, x0, start, progress) -> nlp.SolveResult:
+        """SLSQP on (x, M_W / M_W0), each problem preconditioned by the Gauss-Newton matrix of its J at
+        x0 and the limit scaled by :data:`POWER_LIMIT_STEP`."""
+        options = self.options
         energy = self._sqp_compiled(options)
         scales = []
         for b in range(len(models)):
@@ -229,21 +287,8 @@ class GaitSolver:
         # the limit as a variable on the energy problem's compiled functions: M_W = t M_W0 (t a float)
         limit = limit_minimisation.LimitMinimisation(energy, lambda model, t: dataclasses.replace(
             model, power_limit=model.power_limit * t))
-        result = sqp.solve(self.problem, start, batch, options, compiled=limit,
-                           progress=self._sqp_progress(progress, names), scales=np.stack(scales))
-        x = result.x[:, :-1]
-        solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
-        limits, fine = solve_grid, None
-        if self.check_refinement:
-            fine = self.simulate_refined(x, batch)
-            limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
-        at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
-        cost = np.array([float(energy.value(jnp.asarray(x[b]), jax.tree.map(lambda a: a[b], batch))[0])
-                         for b in range(len(models))])  # J does not depend on the limit
-        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost), refined=fine)
-        for solution, limit in zip(solutions, solve_grid):
-            solution.refinement["solve_grid_limit_W"] = float(limit)
-        return solutions
+        return sqp.solve(self.problem, start, batch, options, compiled=limit,
+                         progress=self._sqp_progress(progress, names), scales=np.stack(scales))
 
     def _report(self, names: list[str], models: list[gait.GaitModel], result: nlp.SolveResult,
                 refined: gait.GaitTrajectory | None = None) -> list[GaitSolution]:

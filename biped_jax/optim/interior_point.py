@@ -19,8 +19,10 @@ Math. Prog. 106, 2006) and its filter line search:
   step that lowers the constraint violation theta = |h|_1 + |g + s|_1 or the barrier objective
   phi = f - mu sum(log s) enough and is not dominated by an earlier iterate (the filter; Armijo on phi
   where theta is already small), with one second-order correction of the first trial (against the
-  Maratos effect on curved constraints). A problem whose line search keeps failing stops (``stalled``,
-  or ``infeasible`` with its violation: there is no feasibility restoration phase).
+  Maratos effect on curved constraints). Where the filter accepts no step, a feasibility step (the
+  linearised constraints alone, backtracking on theta) stands in for IPOPT's restoration phase; a
+  problem where neither moves for ``max_failures`` iterations stops (``stalled``, or ``infeasible``
+  with its violation).
 
 Batching is ``vmap`` over the problems of one ``jit``-compiled loop (``lax.while_loop``): a problem that
 has finished keeps its state while the others go on. The iterations run in blocks of
@@ -42,7 +44,7 @@ import numpy as np
 from biped_jax.optim import exact_derivatives, nlp
 
 #: Per-problem outcome codes inside the compiled loop (``status`` strings outside).
-_RUNNING, _CONVERGED, _ACCEPTABLE, _STALLED, _LOCALLY_INFEASIBLE, _NOT_FINITE = range(6)
+_RUNNING, _CONVERGED, _ACCEPTABLE, _STALLED, _LOCALLY_INFEASIBLE, _NOT_FINITE, _PADDING = range(7)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,11 +63,14 @@ class InteriorPointOptions:
       block: iterations per call of the compiled loop (progress is reported between blocks).
       mu_initial: the first barrier parameter (smaller for a warm start near an optimum).
       slack_push: the smallest initial slack, so that a start on an active inequality begins inside.
-      objective_scale: the objective is multiplied by this inside the solver (multipliers and results
-        are returned for the unscaled problem): IPOPT scales an objective whose gradient is large.
+      scaling_threshold: the objective and every constraint row are scaled at the start so that no
+        gradient exceeds this (IPOPT's gradient-based scaling, ``nlp_scaling_max_gradient``); results
+        and multipliers are those of the unscaled problem.
+      objective_scale: a further factor on the objective inside the solver.
       equality_regularisation: the smallest diagonal entry of the equality Jacobian's triangular factor,
         relative to its largest (where the equality Jacobian loses rank).
-      max_backtracks: halvings of the step at most before an iteration counts as a failed line search.
+      max_backtracks: trial points of one line search at most, and as many more for the feasibility
+        step that follows a failed one.
       max_failures: consecutive failed line searches before a problem stops (``stalled`` or
         ``infeasible``).
       infeasible_above: a problem that stops with a larger scaled violation is ``infeasible``.
@@ -79,6 +84,7 @@ class InteriorPointOptions:
     block: int = 10
     mu_initial: float = 0.1
     slack_push: float = 1e-2
+    scaling_threshold: float = 100.0
     objective_scale: float = 1.0
     equality_regularisation: float = 1e-10
     max_backtracks: int = 40
@@ -87,7 +93,7 @@ class InteriorPointOptions:
 
     def __post_init__(self):
         for name in ("tolerance", "feasibility", "acceptable_tolerance", "mu_initial", "slack_push",
-                     "objective_scale", "equality_regularisation", "infeasible_above"):
+                     "scaling_threshold", "objective_scale", "equality_regularisation", "infeasible_above"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < np.inf:
                 raise ValueError(f"InteriorPointOptions.{name} must be a positive number, got {value!r}")
@@ -109,6 +115,8 @@ _ARMIJO = 1e-4
 _GAMMA_THETA, _GAMMA_PHI, _GAMMA_ALPHA = 1e-5, 1e-8, 0.05   # the filter's margins, the smallest step
 _S_THETA, _S_PHI, _SWITCH = 1.1, 2.3, 1.0                      # the switching condition
 _FILTER_SIZE = 32       # filter entries kept (the oldest is replaced)
+_ALPHA_SMALLEST = 1e-12  # no trial with a shorter step
+_NEWTON, _CORRECTION, _RESTORATION = 0, 1, 2   # the kinds of trial point of a line search
 
 
 class State(NamedTuple):
@@ -135,23 +143,53 @@ class State(NamedTuple):
     failures: jax.Array
     evaluations: jax.Array
     code: jax.Array
+    scale_f: jax.Array
+    scale_h: jax.Array
+    scale_g: jax.Array
 
 
-def initial_state(problem: nlp.ConstrainedProblem, options: InteriorPointOptions, x0, params, y0, z0) -> State:
-    """The state at x0 (n,): slacks max(-g, slack_push), inequality multipliers z0 where given (> 0)
-    else mu / s, equality multipliers y0 (zero for a cold start)."""
+def initial_state(problem: nlp.ConstrainedProblem, x0, params, y0, z0, mu) -> State:
+    """The state at x0 (n,) before the first iteration, which scales the problem by its first
+    derivatives and then sets the slacks and multipliers (:func:`_first_iteration`): here y and z hold
+    the unscaled multipliers to start from, y0 (zero for a cold start) and z0 (<= 0 where unknown);
+    mu is the first barrier parameter."""
     f, h, g = problem.evaluate(x0, params)
-    mu = jnp.asarray(options.mu_initial, x0.dtype)
-    s = jnp.maximum(-g, options.slack_push)
-    z = jnp.where(z0 > 0, z0 * options.objective_scale, mu / s)
+    mu = jnp.asarray(mu, x0.dtype)
+    s = jnp.ones_like(g)
     theta = _theta(h, g, s)
-    return State(x=x0, s=s, y=y0 * options.objective_scale, z=z, mu=mu,
-                 filter_theta=jnp.full(_FILTER_SIZE, jnp.inf, x0.dtype), filter_phi=jnp.full(_FILTER_SIZE, jnp.inf, x0.dtype),
+    return State(x=x0, s=s, y=y0, z=z0, mu=mu,
+                 filter_theta=jnp.full(_FILTER_SIZE, jnp.inf, x0.dtype),
+                 filter_phi=jnp.full(_FILTER_SIZE, jnp.inf, x0.dtype),
                  filter_next=jnp.zeros((), jnp.int32), theta_min=1e-4 * jnp.maximum(1.0, theta),
-                 theta_max=1e4 * jnp.maximum(1.0, theta), delta=jnp.zeros((), x0.dtype), f=f, h=h, g=g, error=jnp.asarray(jnp.inf, x0.dtype),
+                 theta_max=1e4 * jnp.maximum(1.0, theta), delta=jnp.zeros((), x0.dtype), f=f, h=h, g=g,
+                 error=jnp.asarray(jnp.inf, x0.dtype),
                  stationarity=jnp.asarray(jnp.inf, x0.dtype), iteration=jnp.zeros((), jnp.int32),
                  acceptable=jnp.zeros((), jnp.int32), failures=jnp.zeros((), jnp.int32),
-                 evaluations=jnp.ones((), jnp.int32), code=jnp.asarray(_RUNNING, jnp.int32))
+                 evaluations=jnp.ones((), jnp.int32), code=jnp.asarray(_RUNNING, jnp.int32),
+                 scale_f=jnp.ones((), x0.dtype), scale_h=jnp.ones_like(h), scale_g=jnp.ones_like(g))
+
+
+def _row_scales(jacobian, threshold):
+    """IPOPT's gradient-based scaling: each row multiplied by min(1, threshold / its largest
+    derivative), so that no scaled gradient exceeds the threshold (rows without one keep 1)."""
+    largest = jnp.max(jnp.abs(jacobian), axis=-1, initial=0.0)
+    return jnp.where(largest > threshold, threshold / jnp.maximum(largest, 1e-300), 1.0)
+
+
+def _first_iteration(options, st: State, f, h, g, grad_f, jac_h, jac_g, hessian_f) -> tuple:
+    """At the first iteration (derivatives of f alone at x0): the scales, and the scaled problem's
+    gradient of the Lagrangian, Hessian (f's alone: no multipliers are known yet) and state. Slacks
+    max(-g, slack_push); z from z0 where given, else 1 (IPOPT's bound_mult_init_val); y from y0."""
+    scale_f = _row_scales(grad_f[None], options.scaling_threshold)[0] * options.objective_scale
+    scale_h, scale_g = _row_scales(jac_h, options.scaling_threshold), _row_scales(jac_g, options.scaling_threshold)
+    s = jnp.maximum(-scale_g * g, options.slack_push)
+    z = jnp.where(st.z > 0, st.z * scale_f / scale_g, 1.0)
+    y = st.y * scale_f / scale_h
+    grad = scale_f * grad_f + (scale_h[:, None] * jac_h).T @ y + (scale_g[:, None] * jac_g).T @ z
+    theta = _theta(scale_h * h, scale_g * g, s)
+    state = st._replace(s=s, y=y, z=z, scale_f=scale_f, scale_h=scale_h, scale_g=scale_g,
+                        theta_min=1e-4 * jnp.maximum(1.0, theta), theta_max=1e4 * jnp.maximum(1.0, theta))
+    return state, grad, scale_f * hessian_f
 
 
 def _norm_inf(a):
@@ -201,7 +239,8 @@ def _inertia_corrected(matrix, delta_last, floor):
 
 def _to_boundary(v, dv, tau):
     """The largest step in (0, 1] that keeps v + step dv >= (1 - tau) v (v > 0)."""
-    return jnp.minimum(1.0, jnp.min(jnp.where(dv < 0, -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf), initial=jnp.inf))
+    limits = jnp.where(dv < 0, -tau * v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+    return jnp.minimum(1.0, jnp.min(limits, initial=jnp.inf))
 
 
 def _solve_factored(factor, rhs):
@@ -227,7 +266,8 @@ def newton_solver(condensed, jac_h, delta_last, floor, regularisation):
     r = r[:equalities]
     diagonal = jnp.diag(r)
     smallest = regularisation * jnp.maximum(jnp.max(jnp.abs(diagonal)), 1e-300)
-    r = r + jnp.diag(jnp.where(jnp.abs(diagonal) < smallest, jnp.where(diagonal < 0, -smallest, smallest) - diagonal, 0.0))
+    kept = jnp.where(diagonal < 0, -smallest, smallest)
+    r = r + jnp.diag(jnp.where(jnp.abs(diagonal) < smallest, kept - diagonal, 0.0))
     range_basis, null_basis = q[:, :equalities], q[:, equalities:]
     reduced = null_basis.T @ condensed @ null_basis
     factor, delta = _inertia_corrected(reduced, delta_last, floor)
@@ -268,13 +308,21 @@ def _filter_accepts(theta_t, phi_t, theta, phi, alpha, slope, st: State):
 
 
 def _iterate(problem, options, structure, params, st: State) -> State:
-    """One interior-point iteration of one problem."""
-    w = options.objective_scale
-    f, h, g, grad, jac_h, jac_g, hessian = exact_derivatives.derivatives(
-        problem, st.x, params, w, st.y, st.z, structure)
+    """One interior-point iteration of one problem, on the problem scaled by st.scale_f, scale_h,
+    scale_g (set by the first iteration)."""
+    first = st.iteration == 0
+    f, h_raw, g_raw, grad, jac_h, jac_g, hessian = exact_derivatives.derivatives(
+        problem, st.x, params, jnp.where(first, 1.0, st.scale_f), jnp.where(first, 0.0, st.scale_h * st.y),
+        jnp.where(first, 0.0, st.scale_g * st.z), structure)
+    started, grad_first, hessian_first = _first_iteration(options, st, f, h_raw, g_raw, grad, jac_h, jac_g, hessian)
+    st = jax.tree.map(lambda a, b: jnp.where(first, a, b), started, st)
+    grad, hessian = jnp.where(first, grad_first, grad), jnp.where(first, hessian_first, hessian)
+    w, scale_h, scale_g = st.scale_f, st.scale_h, st.scale_g
+    feasible = violation(h_raw, g_raw) <= options.feasibility
+    h, g = scale_h * h_raw, scale_g * g_raw
+    jac_h, jac_g = scale_h[:, None] * jac_h, scale_g[:, None] * jac_g
     dual, primal, complementarity = _kkt_errors(grad, h, g, st.s, st.y, st.z, 0.0)
     error = jnp.maximum(jnp.maximum(dual, primal), complementarity)
-    feasible = violation(h, g) <= options.feasibility
     acceptable = jnp.where((error <= options.acceptable_tolerance) & feasible, st.acceptable + 1, 0)
     converged = (error <= options.tolerance) & feasible
     accepted = acceptable >= options.acceptable_iterations
@@ -307,57 +355,77 @@ def _iterate(problem, options, structure, params, st: State) -> State:
     dx, dy, ds, alpha_max = step(h, g + s)
     theta, phi = _theta(h, g, s), _phi(w, f, s, mu)
     slope = (grad - jac_h.T @ st.y - jac_g.T @ z) @ dx - mu * jnp.sum(ds / s)   # of phi along the step
+    descent = -jnp.minimum(slope, -1e-300)
     alpha_min = _GAMMA_ALPHA * jnp.where(
-        slope < 0, jnp.minimum(_GAMMA_THETA, jnp.minimum(_GAMMA_PHI * theta / -jnp.minimum(slope, -1e-300),
-                                                         _SWITCH * theta ** _S_THETA / (-jnp.minimum(slope, -1e-300)) ** _S_PHI)),
+        slope < 0, jnp.minimum(_GAMMA_THETA, jnp.minimum(_GAMMA_PHI * theta / descent,
+                                                         _SWITCH * theta ** _S_THETA / descent ** _S_PHI)),
         _GAMMA_THETA)
 
-    def trial(alpha, dx, ds):
-        x_t, s_t = st.x + alpha * dx, s + alpha * ds
-        f_t, h_t, g_t = problem.evaluate(x_t, params)
-        ok, f_type = _filter_accepts(_theta(h_t, g_t, s_t), _phi(w, f_t, s_t, mu), theta, phi, alpha, slope, st)
-        return ok, f_type, (f_t, h_t, g_t)
+    # The trial points, one rollout each in one loop (a single copy of the rollout in the program):
+    # the full Newton step; where the filter rejects it and it raised theta, one second-order correction
+    # of it; then the Newton step halved down to alpha_min; where that fails too, a feasibility step
+    # (the linearised constraints solved in the same metric, the objective left out) halved until theta
+    # falls (a short stand-in for IPOPT's feasibility restoration phase: the point it leaves joins the
+    # filter, so that the iteration cannot come back to it).
+    dx_r, dy_r = newton(-(jac_g.T @ (sigma * (g + s))), h)
+    ds_r = -(g + s) - jac_g @ dx_r
+    alpha_r0 = _to_boundary(s, ds_r, tau)
 
-    # the full step, else one second-order correction of it, else backtracking along the Newton step
-    ok, f_type, values = trial(alpha_max, dx, ds)
-    h_full, g_full = values[1], values[2] + s + alpha_max * ds
-    dx_c, dy_c, ds_c, alpha_c = step(alpha_max * h + h_full, alpha_max * (g + s) + g_full)
-    ok_c, f_type_c, values_c = trial(alpha_c, dx_c, ds_c)
-    corrected = ~ok & ok_c & (_theta(*values[1:], s + alpha_max * ds) >= theta)
-    pick = lambda a, b: jnp.where(corrected, b, a)  # noqa: E731
-    dx, dy, ds, alpha0 = pick(dx, dx_c), pick(dy, dy_c), pick(ds, ds_c), pick(alpha_max, alpha_c)
-    ok, f_type = ok | corrected, pick(f_type, f_type_c)
-    values = jax.tree.map(pick, values, values_c)
+    def trial_body(carry):
+        k, mode, alpha, _, _, first = carry
+        h_first, g_first = first                          # scaled h and g + s at the full step
+        dx_c, dy_c, ds_c, alpha_c = step(alpha_max * h + h_first, alpha_max * (g + s) + g_first)
+        pick = lambda *choices: jnp.select([mode == _NEWTON, mode == _CORRECTION], choices[:2], choices[2])  # noqa: E731
+        direction = (pick(dx, dx_c, dx_r), pick(dy, dy_c, dy_r), pick(ds, ds_c, ds_r))
+        alpha = jnp.where(mode == _CORRECTION, alpha_c, alpha)
+        s_t = s + alpha * direction[2]
+        f_t, h_t, g_t = problem.evaluate(st.x + alpha * direction[0], params)
+        theta_t = _theta(scale_h * h_t, scale_g * g_t, s_t)
+        accepted, f_type = _filter_accepts(theta_t, _phi(w, f_t, s_t, mu), theta, phi, alpha, slope, st)
+        restored = jnp.isfinite(theta_t) & jnp.isfinite(f_t) & (theta_t <= (1 - _ARMIJO * alpha) * theta)
+        ok = jnp.where(mode == _RESTORATION, restored, accepted)
+        # the next trial where this one fails
+        correct = (k == 0) & (theta_t >= theta)
+        halved = jnp.where(mode == _CORRECTION, 0.5 * alpha_max, 0.5 * alpha)
+        restore = (mode != _RESTORATION) & (halved < alpha_min)
+        after_newton = jnp.where(restore, _RESTORATION, _NEWTON)
+        next_mode = jnp.where(mode == _RESTORATION, _RESTORATION,
+                              jnp.where((mode == _NEWTON) & correct, _CORRECTION, after_newton))
+        next_alpha = jnp.where(mode == _RESTORATION, 0.5 * alpha,
+                               jnp.where((mode == _NEWTON) & correct, alpha, jnp.where(restore, alpha_r0, halved)))
+        first = jax.tree.map(lambda new, old: jnp.where(k == 0, new, old), (scale_h * h_t, scale_g * g_t + s_t), first)
+        result = (ok, f_type & (mode != _RESTORATION), mode, alpha, direction, (f_t, h_t, g_t))
+        return k + 1, next_mode, next_alpha, ok, result, first
 
-    def search_cond(carry):
-        _, alpha, ok, _, _ = carry
-        return ~ok & (alpha * 0.5 >= alpha_min)
-
-    def search_body(carry):
-        k, alpha, _, _, _ = carry
-        ok, f_type, values = trial(alpha * 0.5, dx, ds)
-        return k + 1, alpha * 0.5, ok, f_type, values
-
-    backtracks, alpha, ok, f_type, (f_t, h_t, g_t) = jax.lax.while_loop(
-        search_cond, search_body, (jnp.zeros((), jnp.int32), alpha0, ok, f_type, values))
-    alpha = jnp.where(ok, alpha, 0.0)
-    s_new = jnp.where(ok, s + alpha * ds, s)
+    initial = (jnp.zeros((), jnp.int32), jnp.asarray(_NEWTON), alpha_max, jnp.zeros((), bool),
+               (jnp.zeros((), bool), jnp.zeros((), bool), jnp.asarray(_NEWTON), jnp.zeros_like(alpha_max),
+                (dx, dy, ds), (f, h_raw, g_raw)), (h, g + s))
+    trials, _, _, _, result, _ = jax.lax.while_loop(
+        lambda carry: ~carry[3] & (carry[0] < 2 * options.max_backtracks) & (carry[2] > _ALPHA_SMALLEST),
+        trial_body, initial)
+    ok, f_type, mode, alpha, (dx, dy, ds), (f_t, h_t, g_t) = result
+    restored = ok & (mode == _RESTORATION)
+    moved, ok = ok, ok & ~restored
+    alpha = jnp.where(moved, alpha, 0.0)
+    s_new = jnp.where(moved, s + alpha * ds, s)
     dz = mu / s - z - sigma * ds
     alpha_z = _to_boundary(z, dz, tau)
     x_new, y_new = st.x + alpha * dx, st.y + alpha * dy
-    z_new = jnp.where(ok, z + alpha_z * dz, z)
+    z_new = jnp.where(moved, z + alpha_z * dz, z)
     z_new = jnp.clip(z_new, mu / (_KAPPA_SIGMA * s_new), _KAPPA_SIGMA * mu / s_new)
-    failures = jnp.where(ok, 0, st.failures + 1)
-    # an accepted step that is not f-type adds the current point (with margins) to the filter
-    augment = ok & ~f_type
+    failures = jnp.where(ok, 0, jnp.where(restored, st.failures, st.failures + 1))
+    # an accepted step that is not f-type, and a restoration step, add the current point (with
+    # margins) to the filter
+    augment = (ok & ~f_type) | restored
     slot = st.filter_next % _FILTER_SIZE
     filter_theta = jnp.where(augment, st.filter_theta.at[slot].set((1 - _GAMMA_THETA) * theta), st.filter_theta)
     filter_phi = jnp.where(augment, st.filter_phi.at[slot].set(phi - _GAMMA_PHI * theta), st.filter_phi)
+    backtracks = trials
 
-    stationarity = _norm_inf(grad) / w / jnp.maximum(1.0, jnp.abs(f))
+    stationarity = _norm_inf(grad) / w / jnp.maximum(1.0, jnp.abs(f))  # of the unscaled problem's L
     finite = jnp.isfinite(error) & jnp.all(jnp.isfinite(dx))
     stopped = failures >= options.max_failures
-    infeasible = stopped & (violation(h, g) > options.infeasible_above)
+    infeasible = stopped & (violation(h_raw, g_raw) > options.infeasible_above)
     code = jnp.select([~finite, converged, accepted, infeasible, stopped],
                       [_NOT_FINITE, _CONVERGED, _ACCEPTABLE, _LOCALLY_INFEASIBLE, _STALLED], _RUNNING)
     done = code != _RUNNING
@@ -367,10 +435,11 @@ def _iterate(problem, options, structure, params, st: State) -> State:
                  filter_theta=filter_theta, filter_phi=filter_phi,
                  filter_next=st.filter_next + augment.astype(jnp.int32), theta_min=st.theta_min,
                  theta_max=st.theta_max, delta=delta,
-                 f=keep(f, jnp.where(ok, f_t, f)), h=keep(h, jnp.where(ok, h_t, h)), g=keep(g, jnp.where(ok, g_t, g)),
+                 f=keep(f, jnp.where(moved, f_t, f)), h=keep(h_raw, jnp.where(moved, h_t, h_raw)),
+                 g=keep(g_raw, jnp.where(moved, g_t, g_raw)),
                  error=error, stationarity=stationarity, iteration=st.iteration + 1, acceptable=acceptable,
                  failures=failures, evaluations=st.evaluations + structure.colours + backtracks + 2,
-                 code=code.astype(jnp.int32))
+                 code=code.astype(jnp.int32), scale_f=w, scale_h=scale_h, scale_g=scale_g)
 
 
 def _block(problem, options, structure, params, state: State, until) -> State:
@@ -391,10 +460,18 @@ class CompiledInteriorPoint:
     block: Callable
 
 
+def loop_options(options: InteriorPointOptions) -> InteriorPointOptions:
+    """``options`` less the settings the compiled iterations do not depend on (the first barrier
+    parameter, the iteration budget and its blocks): solves that differ only in those share programs."""
+    return dataclasses.replace(options, mu_initial=0.1, max_iterations=1, block=1)
+
+
 def compile_problem(problem: nlp.ConstrainedProblem, options: InteriorPointOptions = InteriorPointOptions()
                     ) -> CompiledInteriorPoint:
-    """The interior point's programs for ``problem`` (compiled on first call)."""
-    initial = jax.jit(jax.vmap(functools.partial(initial_state, problem, options)))
+    """The interior point's programs for ``problem`` (compiled on first call), for every options that
+    share :func:`loop_options` with ``options``."""
+    options = loop_options(options)
+    initial = jax.jit(jax.vmap(functools.partial(initial_state, problem), in_axes=(0, 0, 0, 0, None)))
     block = jax.jit(jax.vmap(functools.partial(_block, problem, options), in_axes=(None, 0, 0, None)))
     return CompiledInteriorPoint(problem, options, initial, block)
 
@@ -407,6 +484,20 @@ def _status(code: int, final_violation: float, options: InteriorPointOptions) ->
     if code == _RUNNING and final_violation > options.infeasible_above:
         return nlp.INFEASIBLE
     return _STATUS[code]
+
+
+def padded_batch(batch: int) -> int:
+    """The batch size a batch of ``batch`` problems runs as: the next power of two or 1.5 times one (1, 2,
+    3, 4, 6, 8, 12, 16, 24, ...), so that batches of nearby sizes share a compiled program and padding
+    leaves at most a third of the lanes idle."""
+    size = 1 << max(batch - 1, 0).bit_length()
+    return 3 * size // 4 if size >= 4 and 3 * size // 4 >= batch else size
+
+
+def _pad(leaf, size: int):
+    """``leaf`` (B, ...) extended to (size, ...) by copies of its first row."""
+    extra = size - leaf.shape[0]
+    return leaf if extra == 0 else jnp.concatenate([leaf, jnp.repeat(leaf[:1], extra, axis=0)])
 
 
 def batch_sharding(batch: int):
@@ -432,18 +523,21 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
       options: solver settings.
       structure: the derivatives' colouring (:func:`~biped_jax.optim.exact_derivatives.probe_structure`),
         shared by the batch; None: dense (every column its own direction).
-      compiled: from :func:`compile_problem` with the same options, to reuse across calls.
+      compiled: from :func:`compile_problem` with the same :func:`loop_options`, to reuse across calls.
       multipliers: (y0 (B, m_h), z0 (B, m_g)) to warm-start with (of the unscaled problem; z0 <= 0 where
         unknown); None: zero and mu / s.
       progress: called after every block with (iteration, {"cost", "violation", "error", "mu": (B,),
         "done": (B,) bool}).
+
+    The batch is padded to :func:`padded_batch` problems (copies of the first that never iterate), so
+    that batches of nearby sizes share a program.
 
     Returns an :class:`~biped_jax.optim.nlp.SolveResult`: ``outer_iterations`` counts interior-point
     iterations, ``gradients`` the problem evaluations (each derivative pass counted as its colours),
     ``history`` one row per block; the multipliers are the unscaled problem's (f + lam_eq.h + lam_in.g).
     """
     started = time.perf_counter()
-    if compiled is None or compiled.options != options:
+    if compiled is None or compiled.options != loop_options(options):
         compiled = compile_problem(problem, options)
     x0 = jnp.asarray(x0, dtype=jnp.result_type(float))
     if x0.ndim != 2:
@@ -456,10 +550,13 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
         y0, z0 = jnp.zeros((batch,) + h0.shape, x0.dtype), jnp.zeros((batch,) + g0.shape, x0.dtype)
     else:
         y0, z0 = (jnp.asarray(m, x0.dtype) for m in multipliers)
-    sharding = batch_sharding(batch)
+    padded = padded_batch(batch)
+    x0, y0, z0, params = jax.tree.map(lambda a: _pad(jnp.asarray(a), padded), (x0, y0, z0, params))
+    sharding = batch_sharding(padded)
     if sharding is not None:
         x0, y0, z0, params = jax.device_put((x0, y0, z0, params), sharding)
-    state = compiled.initial(x0, params, y0, z0)
+    state = compiled.initial(x0, params, y0, z0, options.mu_initial)
+    state = state._replace(code=jnp.where(jnp.arange(padded) < batch, state.code, _PADDING))
     history = []
     until = 0
     while until < options.max_iterations:
@@ -469,12 +566,13 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
                "error": np.asarray(state.error), "mu": np.asarray(state.mu),
                "gradients": np.asarray(state.evaluations), "penalty": np.zeros(batch),
                "stationarity": np.asarray(state.stationarity), "done": np.asarray(state.code) != _RUNNING}
+        row = {k: v[:batch] for k, v in row.items()}
         history.append(row)
         if progress:
             progress(int(np.max(np.asarray(state.iteration))), row)
         if row["done"].all():
             break
-    scale = options.objective_scale
+    state = jax.tree.map(lambda a: a[:batch], state)
     viol = history[-1]["violation"]
     codes = np.asarray(state.code)
     history[-1]["x"] = np.asarray(state.x)
@@ -484,4 +582,5 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
         status=[_status(int(c), float(v), options) for c, v in zip(codes, viol)],
         outer_iterations=np.asarray(state.iteration), gradients=np.asarray(state.evaluations),
         wall_time_s=time.perf_counter() - started, history=history,
-        multipliers_eq=np.asarray(state.y) / scale, multipliers_in=np.asarray(state.z) / scale)
+        multipliers_eq=np.asarray(state.y * state.scale_h / state.scale_f[:, None]),
+        multipliers_in=np.asarray(state.z * state.scale_g / state.scale_f[:, None]))

@@ -22,6 +22,7 @@ from biped_jax.codesign import problem as codesign
 from biped_jax.drives import model as drives
 from biped_jax.gait import problem as gait
 from biped_jax.gait.solver import GAIT_SOLVER_OPTIONS, GaitSolver
+from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
 
@@ -36,6 +37,14 @@ WINDINGS = ("RE25-42V", "RE25-118752", "RE25-30V", "RE25-48V")
 #: until its slowest design stops, so designs without a gait would otherwise spend the full default
 #: budget; those hitting this one report "iteration limit". SLSQP's is ``codesign.SOLVER_OPTIONS``.
 STUDY_OPTIONS = dict(max_outer=15, max_inner=250)
+#: The batched interior point's settings for the co-design batches (every design of a batch in one
+#: compiled program).
+IP_OPTIONS = ip.InteriorPointOptions()
+#: Its settings for batches warm-started from a solved gait (every batch but the reference's): from a
+#: smaller barrier parameter, as the paper study's warm stages (the same compiled iterations).
+IP_WARM_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-3)
+#: The co-design studies' solvers (``run_codesign``'s ``solver_name``).
+SOLVERS = ("ip", "sqp", "al")
 #: Catalogue ratios of the Pareto study (2- and 3-stage GP 32 A).
 PARETO_GEARHEADS = ("GP32A-18", "GP32A-23", "GP32A-33", "GP32A-51", "GP32A-66.22", "GP32A-86",
                     "GP32A-111", "GP32A-159")
@@ -43,6 +52,12 @@ PARETO_GEARHEADS = ("GP32A-18", "GP32A-23", "GP32A-33", "GP32A-51", "GP32A-66.22
 SPEED_GEARHEADS = ("GP32A-14", "GP32A-18", "GP32A-21", "GP32A-23", "GP32A-28", "GP32A-33", "GP32A-51",
                    "GP32A-66.22", "GP32A-79", "GP32A-86", "GP32A-103", "GP32A-111", "GP32A-123",
                    "GP32A-132", "GP32A-159", "GP32A-190")
+
+
+def _cold(solver: GaitSolver) -> GaitSolver:
+    """The solver for a solve from the heuristic start: the interior point from its cold barrier
+    parameter (:data:`IP_OPTIONS`), any other method as it is."""
+    return solver.using(IP_OPTIONS) if isinstance(solver.options, ip.InteriorPointOptions) else solver
 
 
 def _converged(solution) -> bool:
@@ -66,7 +81,7 @@ def mass_scaling(solver: GaitSolver, say) -> dict:
     for speed in SPEEDS:
         say(f"(a) the paper's 12 kg robot at {speed} m/s from the heuristic start")
         reference, = codesign.solve_designs(
-            solver, [codesign.catalogue_design(supply_voltage=drives.NO_VOLTAGE_LIMIT)], speed,
+            _cold(solver), [codesign.catalogue_design(supply_voltage=drives.NO_VOLTAGE_LIMIT)], speed,
             gait.NO_POWER_LIMIT, summary=say)
         for mass in MASSES:
             designs.append(codesign.catalogue_design(total_mass=float(mass), supply_voltage=drives.NO_VOLTAGE_LIMIT))
@@ -125,7 +140,8 @@ def reference_gait(solver: GaitSolver, say) -> np.ndarray:
     """The paper's design (42 V, 66:1) at 0.555 m/s, M_W = 20 W, 38 V from the heuristic start: the warm
     start of every study. RuntimeError with its status and violations if it finds no gait."""
     say("the paper's design (42 V, 66:1) from the heuristic start")
-    reference, = codesign.solve_designs(solver, [codesign.catalogue_design()], SPEEDS[1], POWER_LIMIT, summary=say)
+    reference, = codesign.solve_designs(_cold(solver), [codesign.catalogue_design()], SPEEDS[1], POWER_LIMIT,
+                                        summary=say)
     if not _converged(reference):
         raise RuntimeError(f"the paper's design found no gait ({reference.status}; {reference.violations})")
     return reference.x
@@ -180,18 +196,22 @@ def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dyna
                  progress: Callable[[str], None] | None = None, resume: bool = False,
                  solver_name: str = "sqp") -> dict:
     """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png.
-    ``solver_name``: "sqp" (SLSQP, ``codesign.SOLVER_OPTIONS``, the default) or "al" (the batched
-    augmented Lagrangian, :data:`STUDY_OPTIONS`). Each finished study is kept in ``out/stages``
-    (:func:`biped_jax.report.outputs.stage`); ``resume`` takes those written with the same settings instead
-    of solving them again."""
+    ``solver_name``: "sqp" (SLSQP, ``codesign.SOLVER_OPTIONS``, the default), "ip" (the batched interior
+    point, :data:`IP_OPTIONS` for the reference gait and :data:`IP_WARM_OPTIONS` otherwise; single-shot
+    settings are shot in a segment per knot span, its transcription) or "al" (the batched augmented
+    Lagrangian, :data:`STUDY_OPTIONS`).
+    Each finished study is kept in ``out/stages`` (:func:`biped_jax.report.outputs.stage`); ``resume``
+    takes those written with the same settings instead of solving them again."""
     from biped_jax.codesign import plots as codesign_plots
 
-    if solver_name not in ("sqp", "al"):
-        raise ValueError(f"solver must be 'sqp' or 'al', got {solver_name!r}")
+    if solver_name not in SOLVERS:
+        raise ValueError(f"solver must be one of {SOLVERS}, got {solver_name!r}")
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
-    options = (codesign.SOLVER_OPTIONS if solver_name == "sqp"
-               else dataclasses.replace(GAIT_SOLVER_OPTIONS, **STUDY_OPTIONS))
+    options = {"ip": IP_WARM_OPTIONS, "sqp": codesign.SOLVER_OPTIONS,
+               "al": dataclasses.replace(GAIT_SOLVER_OPTIONS, **STUDY_OPTIONS)}[solver_name]
+    if solver_name == "ip" and settings.segments == 1:
+        settings = dataclasses.replace(settings, segments=settings.spans)
     solver = GaitSolver(settings, options)
     results = {"settings": {"spans": settings.spans, "substeps": settings.substeps, "steps": settings.steps,
                             "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,

@@ -25,6 +25,7 @@ import numpy as np
 from biped_jax.gait import problem as gait
 from biped_jax.gait import report as gait_report
 from biped_jax.gait.solver import GaitSolution, GaitSolver
+from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
 from biped_jax.robots.specs import KELLY_BIPED
@@ -36,9 +37,11 @@ TORQUE_BOUND = 100.0  # N m, Kelly's uMax
 NO_FRICTION_LIMIT = gait.NO_FRICTION_LIMIT
 #: Power limit standing for "none", W.
 NO_POWER_LIMIT = gait.NO_POWER_LIMIT
-#: Settings of the benchmark: the study's reference space and grid with Kelly's bounds.
+#: Settings of the benchmark: 16 cubic knot spans, a shooting segment per span, with Kelly's bounds.
 KELLY_SETTINGS = gait.GaitSettings(spans=16, degree=3, substeps=4, torque_bound=TORQUE_BOUND,
-                                   friction=NO_FRICTION_LIMIT, knee_max=3.0)
+                                   friction=NO_FRICTION_LIMIT, knee_max=3.0, segments=16)
+#: The batched interior point solves every start in one batch.
+KELLY_OPTIONS = ip.InteriorPointOptions()
 #: Swing-knee lifts of the heuristic starts solved together (one batch, the best converged one wins).
 START_LIFTS = (0.3, 0.5, 0.8, 1.1)
 #: A constraint whose residual is within this of its bound (own units) counts as active.
@@ -68,7 +71,7 @@ def solve_kelly(settings: gait.GaitSettings = KELLY_SETTINGS,
                 progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
     """Solves the benchmark from every start of :func:`starts` in one batch; best (converged, then
     cheapest) first."""
-    solver = GaitSolver(settings, mass_class_template="kelly")
+    solver = GaitSolver(settings, KELLY_OPTIONS, mass_class_template="kelly")
     model = kelly_model()
     names = [f"kelly (swing lift {lift})" for lift in START_LIFTS]
     solutions = solver.solve(names, [model] * len(START_LIFTS), x0=starts(model, settings), progress=progress)
@@ -79,7 +82,7 @@ def refine(solution: GaitSolution, settings: gait.GaitSettings,
            progress: Callable[[int, dict], None] | None = None) -> GaitSolution:
     """Re-solves on a grid twice as fine, warm-started from ``solution`` (the decision vector does not
     depend on the grid)."""
-    solver = GaitSolver(gait.refined(settings, 2), mass_class_template="kelly")
+    solver = GaitSolver(gait.refined(settings, 2), KELLY_OPTIONS, mass_class_template="kelly")
     fine, = solver.solve(["kelly"], [kelly_model()], x0=jnp.asarray(solution.x)[None], progress=progress)
     return fine
 
@@ -115,8 +118,8 @@ def run_kelly(out: Path, settings: gait.GaitSettings = KELLY_SETTINGS,
     out.mkdir(parents=True, exist_ok=True)
 
     def report(i, row):
-        say(f"outer iteration {i + 1}: best J {np.min(row['cost']):.2f}, largest scaled violation "
-            f"{np.max(row['violation']):.1e}, gradients {int(np.max(row['gradients']))}")
+        say(f"interior-point iteration {i}: best J {np.min(row['cost']):.2f}, largest scaled violation "
+            f"{np.max(row['violation']):.1e}, {int(np.sum(row['done']))} of {row['done'].size} starts finished")
 
     say(f"compiling and solving Kelly's five-link biped on {settings.steps} Runge-Kutta steps from "
         f"{len(START_LIFTS)} starts in one batch")

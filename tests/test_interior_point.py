@@ -1,0 +1,227 @@
+"""The batched interior point (biped_jax.optim.interior_point) on small problems with known optima and
+multipliers, and its exact coloured derivatives against dense ones and central differences."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax.optim import exact_derivatives as ed
+from biped_jax.optim import interior_point as ip
+from biped_jax.optim import nlp
+
+#: Optima to this relative accuracy: the solver's KKT tolerance is 1e-8.
+OPTIMUM_TOLERANCE = 1e-7
+#: Multipliers converge at the rate of the KKT error, a few digits fewer than the point.
+MULTIPLIER_TOLERANCE = 1e-5
+
+
+def hs071(x, target):
+    """Hock and Schittkowski's problem 71 (IPOPT's tutorial problem), sum x^2 = target (40 there)."""
+    f = x[0] * x[3] * (x[0] + x[1] + x[2]) + x[2]
+    h = jnp.array([jnp.sum(x**2) - target])
+    g = jnp.concatenate([jnp.array([25.0 - jnp.prod(x)]), 1.0 - x, x - 5.0])
+    return f, h, g
+
+
+@pytest.fixture(scope="module")
+def hs071_result():
+    starts = jnp.array([[1.0, 5.0, 5.0, 1.0], [2.0, 2.0, 2.0, 2.0], [1.5, 4.0, 4.0, 1.5]])
+    return ip.solve(nlp.ConstrainedProblem(hs071), starts, jnp.full(3, 40.0))
+
+
+def test_hs071_reaches_its_known_optimum_and_multipliers(hs071_result):
+    # Hock and Schittkowski (1981), problem 71; multipliers as IPOPT's tutorial reports them
+    optimum = np.array([1.0, 4.74299963, 3.82114998, 1.37940829])
+    result = hs071_result
+    assert result.status == ["converged"] * 3
+    np.testing.assert_allclose(result.cost, 17.0140173, rtol=OPTIMUM_TOLERANCE)
+    np.testing.assert_allclose(result.x, np.tile(optimum, (3, 1)), rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(result.multipliers_eq[:, 0], 0.161468568, rtol=MULTIPLIER_TOLERANCE)
+    np.testing.assert_allclose(result.multipliers_in[:, 0], 0.552293663, rtol=MULTIPLIER_TOLERANCE)  # product
+    np.testing.assert_allclose(result.multipliers_in[:, 1], 1.087871244, rtol=MULTIPLIER_TOLERANCE)  # x1 >= 1
+    assert np.all(result.multipliers_in[:, 2:] < 1e-7)  # inactive bounds
+    assert np.all(result.outer_iterations < 40)
+
+
+def test_the_envelope_gradient_of_hs071_is_its_multiplier(hs071_result):
+    # d f* / d target = -lambda (f + lambda (sum x^2 - target)): the multiplier is the sensitivity
+    bigger = ip.solve(nlp.ConstrainedProblem(hs071), hs071_result.x[:1], jnp.array([40.01]))
+    slope = (bigger.cost[0] - hs071_result.cost[0]) / 0.01
+    assert slope == pytest.approx(-hs071_result.multipliers_eq[0, 0], rel=1e-3)
+
+
+def equality_qp(x, data):
+    """min |x - a|^2 / 2 subject to A x = b, one inactive bound x <= 10."""
+    a, matrix, b = data
+    return 0.5 * jnp.sum((x - a) ** 2), matrix @ x - b, x - 10.0
+
+
+def test_an_equality_constrained_problem_has_its_closed_form_solution():
+    rng = np.random.default_rng(0)
+    a, matrix, b = rng.normal(size=(2, 5)), rng.normal(size=(2, 2, 5)), rng.normal(size=(2, 2))
+    result = ip.solve(nlp.ConstrainedProblem(equality_qp), np.zeros((2, 5)), (a, matrix, b))
+    for k in range(2):
+        multiplier = np.linalg.solve(matrix[k] @ matrix[k].T, matrix[k] @ a[k] - b[k])
+        np.testing.assert_allclose(result.x[k], a[k] - matrix[k].T @ multiplier, atol=1e-8)
+        np.testing.assert_allclose(result.multipliers_eq[k], multiplier, atol=1e-6)
+        assert np.all(np.abs(result.multipliers_in[k]) < 1e-7)
+    assert result.status == ["converged"] * 2
+
+
+def active_and_inactive(x, _):
+    """min (x1 - 1)^2 + (x2 - 2)^2 subject to x1 + x2 <= 2 (active at (0.5, 1.5), multiplier 1) and
+    x1 <= 10 (inactive)."""
+    return (x[0] - 1) ** 2 + (x[1] - 2) ** 2, jnp.zeros(0), jnp.array([x[0] + x[1] - 2.0, x[0] - 10.0])
+
+
+def test_active_and_inactive_inequalities():
+    result = ip.solve(nlp.ConstrainedProblem(active_and_inactive), jnp.array([[5.0, -3.0]]), jnp.zeros(1))
+    assert result.status == ["converged"]
+    np.testing.assert_allclose(result.x[0], [0.5, 1.5], atol=1e-8)
+    np.testing.assert_allclose(result.multipliers_in[0], [1.0, 0.0], atol=1e-6)
+
+
+def degenerate(x, _):
+    """min x1^2 + x2^2 subject to x1 + x2 >= 1 twice (the active constraints linearly dependent:
+    the multipliers are not unique, their sum is 1) and x2 >= 0.5 (weakly active: its multiplier
+    is 0 at the optimum (0.5, 0.5), no strict complementarity)."""
+    row = 1.0 - x[0] - x[1]
+    return x[0] ** 2 + x[1] ** 2, jnp.zeros(0), jnp.array([row, row, 0.5 - x[1]])
+
+
+def test_a_degenerate_problem_converges_to_its_optimum():
+    result = ip.solve(nlp.ConstrainedProblem(degenerate), jnp.array([[3.0, 2.0]]), jnp.zeros(1))
+    assert result.status == ["converged"]
+    assert result.cost[0] == pytest.approx(0.5, abs=1e-8)
+    # without strict complementarity an interior point's x converges like sqrt(mu) (mu ends at 1e-9)
+    np.testing.assert_allclose(result.x[0], [0.5, 0.5], atol=1e-4)
+    assert result.multipliers_in[0, :2].sum() == pytest.approx(1.0, abs=1e-3)  # as slowly as x
+    assert result.multipliers_in[0, 2] == pytest.approx(0.0, abs=1e-3)
+
+
+def infeasible(x, _):
+    """x1^2 + x2^2 <= 1 and x1 >= 2: no feasible point (the least violated is (1.5, 0), 1.25 / 0.5)."""
+    return x[0] ** 2 + x[1] ** 2, jnp.zeros(0), jnp.array([x[0] ** 2 + x[1] ** 2 - 1.0, 2.0 - x[0]])
+
+
+def test_an_infeasible_problem_says_so_with_its_violation():
+    result = ip.solve(nlp.ConstrainedProblem(infeasible), jnp.array([[0.5, 0.5]]), jnp.zeros(1),
+                      ip.InteriorPointOptions(max_iterations=100))
+    assert result.status == ["infeasible"]
+    assert result.violation[0] > 0.1
+    assert np.all(np.isfinite(result.x)) and np.isfinite(result.cost[0])
+
+
+def test_batches_of_other_problems_and_sizes_share_one_program():
+    compiled = ip.compile_problem(nlp.ConstrainedProblem(hs071))
+    batches = ([40.0, 38.0, 42.0, 41.0, 39.0], [39.0, 41.0, 40.5, 38.5, 41.5, 40.0], [40.0, 37.0, 43.0, 39.5, 42.0])
+    for targets in batches:
+        result = ip.solve(compiled.problem, np.tile([1.0, 5.0, 5.0, 1.0], (len(targets), 1)), jnp.asarray(targets),
+                          compiled=compiled)
+        assert result.status == ["converged"] * len(targets)
+        assert result.x.shape == (len(targets), 4)
+    # batches are padded (to 6 here): other targets, 5 and 6 problems run in one program
+    assert compiled.block._cache_size() == 1
+    assert compiled.initial._cache_size() == 1
+
+
+def test_batches_are_padded_to_few_sizes():
+    sizes = [ip.padded_batch(b) for b in range(1, 50)]
+    assert sorted(set(sizes)) == [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64]
+    assert all(b <= size <= 1.5 * b for b, size in zip(range(1, 50), sizes))
+
+
+def test_options_name_a_bad_value():
+    with pytest.raises(ValueError, match="tolerance must be a positive number, got -1"):
+        ip.InteriorPointOptions(tolerance=-1.0)
+    with pytest.raises(ValueError, match="max_iterations must be a positive integer, got 0"):
+        ip.InteriorPointOptions(max_iterations=0)
+    with pytest.raises(ValueError, match=r"x0 must have shape \(B, n\)"):
+        ip.solve(nlp.ConstrainedProblem(hs071), jnp.ones(4), jnp.full(1, 40.0))
+
+
+def banded(x, scale):
+    """A chain x_k -> x_{k+1} whose rows reach three neighbouring columns (a colouring needs few
+    colours), with products and sines so that every second derivative is non-trivial."""
+    r = scale * (x[1:-1] ** 2 - x[:-2] * x[2:])
+    h = jnp.sin(x[1:] * x[:-1]) - 0.1
+    g = x[:-2] * x[1:-1] * x[2:] - 1.0
+    return r, h, g
+
+
+def test_coloured_derivatives_equal_dense_ones_and_central_differences():
+    jax.config.update("jax_enable_x64", True)
+    problem = nlp.ConstrainedProblem.from_residuals(banded)
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=24)
+    structure = ed.probe_structure(problem, x, 1.5, padding=1)
+    assert structure.colours < 12  # banded: far fewer than the 24 columns
+    y, z = rng.normal(size=23), rng.uniform(size=22)
+    dense = ed.dense_structure(24, 45)
+    coloured_parts = ed.derivatives(problem, x, 1.5, 0.7, y, z, structure)
+    dense_parts = ed.derivatives(problem, x, 1.5, 0.7, y, z, dense)
+    for a, b in zip(coloured_parts, dense_parts):
+        np.testing.assert_allclose(a, b, rtol=1e-13, atol=1e-13)
+    f, h, g, grad, jac_h, jac_g, hessian = coloured_parts
+
+    def lagrangian_gradient(point):
+        return ed.derivatives(problem, point, 1.5, 0.7, y, z, structure)[3]
+    step = 1e-6  # central differences in float64: error ~ step^2 f''' + eps / step, about 1e-9
+    for i in range(24):
+        e = np.eye(24)[i] * step
+        f_plus, h_plus, g_plus = problem.evaluate(x + e, 1.5)
+        f_minus, h_minus, g_minus = problem.evaluate(x - e, 1.5)
+        np.testing.assert_allclose(jac_h[:, i], (h_plus - h_minus) / (2 * step), atol=1e-8)
+        np.testing.assert_allclose(jac_g[:, i], (g_plus - g_minus) / (2 * step), atol=1e-8)
+        difference = (lagrangian_gradient(x + e) - lagrangian_gradient(x - e)) / (2 * step)
+        np.testing.assert_allclose(hessian[:, i], difference, atol=1e-6)
+        assert grad[i] == pytest.approx(0.7 * (f_plus - f_minus) / (2 * step) + y @ jac_h[:, i] + z @ jac_g[:, i],
+                                        abs=1e-7)
+
+
+# ----------------------------------------------------------------------------- the gait problem
+
+#: Stationarity of the Lagrangian with central-difference derivatives at the interior point's optimum,
+#: relative to the objective's gradient: the differences are good to about 1e-8 relative.
+KKT_TOLERANCE = 1e-5
+
+
+@pytest.fixture(scope="module")
+def interior_gaits():
+    """M1-M4 in the tests' short space (4 knot spans), a shooting segment per span, from the default
+    start family, in one batch of the batched interior point."""
+    import dataclasses
+    from conftest import short_settings
+    from biped_jax.gait.solver import GaitSolver
+    from biped_jax.studies import paper as study
+    settings = dataclasses.replace(short_settings(), segments=4)
+    solver = GaitSolver(settings, study.IP_OPTIONS, require_refinement=False)
+    models = study.paper_gait_models(study.PAPER_MODELS)
+    return solver, models, solver.solve([r.name for r in study.PAPER_MODELS], models)
+
+
+def test_gaits_converge_to_kkt_points_checked_with_central_differences(interior_gaits):
+    from biped_jax.gait.solver import stack_tree
+    from biped_jax.optim import coloured
+    solver, models, solutions = interior_gaits
+    assert [s.status for s in solutions] == ["converged"] * 4
+    assert all(s.max_violation < 1e-6 for s in solutions)
+    differences = coloured.compile_problem(solver.problem)  # SLSQP's derivatives: independent of autodiff
+    batch = stack_tree(models)
+    for b, solution in enumerate(solutions):
+        model = jax.tree.map(lambda a: a[b], batch)
+        f, h, g, grad, jac_h, jac_g, _ = map(np.asarray, differences.derivatives(solution.x, model))
+        lam_eq, lam_in = solution.multipliers_eq, solution.multipliers_in
+        assert np.all(lam_in >= 0)
+        stationarity = grad + jac_h.T @ lam_eq + jac_g.T @ lam_in
+        assert np.max(np.abs(stationarity)) < KKT_TOLERANCE * np.max(np.abs(grad))
+        assert np.max(np.abs(lam_in * g)) < 1e-6  # complementarity
+        # the autodiff Jacobians the solver used equal the central differences (float64)
+        auto = jax.jit(ed.derivatives, static_argnums=0)(
+            solver.problem, jnp.asarray(solution.x), model, 1.0, jnp.asarray(lam_eq), jnp.asarray(lam_in),
+            solver._structures["energy"])
+        np.testing.assert_allclose(auto[4], jac_h, atol=1e-6 * np.max(np.abs(jac_h)))
+        np.testing.assert_allclose(auto[5], jac_g, atol=1e-6 * np.max(np.abs(jac_g)))
+        np.testing.assert_allclose(auto[3], grad + jac_h.T @ lam_eq + jac_g.T @ lam_in,
+                                   atol=1e-5 * np.max(np.abs(grad)))
