@@ -142,6 +142,17 @@ def test_json_is_strict_and_missing_values_are_null(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]  # no temporary left behind
 
 
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_result_files_are_as_readable_as_the_umask_says(tmp_path, umask, mode):
+    old = os.umask(umask)
+    try:
+        paths = [outputs.write_json(tmp_path / "r.json", {"a": 1}), outputs.write_text(tmp_path / "t.md", "x\n"),
+                 outputs.write_bytes(tmp_path / "b.bin", b"x")]
+    finally:
+        os.umask(old)
+    assert [oct(p.stat().st_mode & 0o777) for p in paths] == [oct(mode)] * 3
+
+
 def test_a_quick_look_says_so_in_every_file_it_writes(tmp_path):
     """`reproduce --quick` runs its study inside outputs.stamped(QUICK_STAMP): JSON, markdown, the
     figures, the npz and the manifest all carry the stamp; a file written after the block does not."""

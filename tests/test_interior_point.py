@@ -189,14 +189,12 @@ KKT_TOLERANCE = 1e-5
 
 @pytest.fixture(scope="module")
 def interior_gaits():
-    """M1-M4 in the tests' short space (4 knot spans), a shooting segment per span, from the default
-    start family, in one batch of the batched interior point."""
-    import dataclasses
+    """M1-M4 in the tests' short space (4 knot spans, single shooting) from the default start family, in
+    one batch of the batched interior point (no refinement check: its rollout is the gait tests')."""
     from conftest import short_settings
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import paper as study
-    settings = dataclasses.replace(short_settings(), segments=4)
-    solver = GaitSolver(settings, study.IP_OPTIONS, require_refinement=False)
+    solver = GaitSolver(short_settings(), study.IP_OPTIONS, check_refinement=False)
     models = study.paper_gait_models(study.PAPER_MODELS)
     return solver, models, solver.solve([r.name for r in study.PAPER_MODELS], models)
 

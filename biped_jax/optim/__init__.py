@@ -1,1 +1,2 @@
-"""The optimisers: the batched augmented Lagrangian and SLSQP."""
+"""The optimisers: the batched interior point (exact autodiff derivatives), the batched augmented
+Lagrangian and SLSQP."""

@@ -6,7 +6,8 @@ problem's data (envelope theorem).
     minimise f(x; p)  subject to  h(x; p) = 0,  g(x; p) <= 0,
 
 x of shape (n,), p a pytree of per-problem data; the constraints scaled to order one by the caller.
-Solved by :mod:`biped_jax.optim.augmented_lagrangian` (batched) and :mod:`biped_jax.optim.sqp`.
+Solved by :mod:`biped_jax.optim.interior_point` (batched, exact derivatives),
+:mod:`biped_jax.optim.augmented_lagrangian` (batched) and :mod:`biped_jax.optim.sqp`.
 """
 
 from __future__ import annotations

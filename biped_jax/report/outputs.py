@@ -88,6 +88,13 @@ def json_text(record: Any) -> str:
     return json.dumps(finite_or_none(record), indent=2, allow_nan=False) + "\n"
 
 
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def _atomic(path: Path, suffix: str, listed: bool = True):
     """Yields a temporary path in ``path``'s folder; moves it onto ``path`` only if the block ends
@@ -98,6 +105,8 @@ def _atomic(path: Path, suffix: str, listed: bool = True):
     os.close(handle)
     try:
         yield Path(temporary)
+        # mkstemp's file is private (0600); a result is as readable as the user's umask says
+        os.chmod(temporary, 0o666 & ~_umask())
         os.replace(temporary, path)
     finally:
         if os.path.exists(temporary):
