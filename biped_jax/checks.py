@@ -41,3 +41,42 @@ def gait_space(spans: int, degree: int, substeps: int, prefix: str = "") -> None
         integer_in(prefix + name, value, *GAIT_INTEGER_RANGES[name])
     if substeps % 2:
         raise ValueError(f"{prefix}substeps must be even (Simpson's rule pairs the steps), got {substeps}")
+
+
+def sequence(name: str, value, kind: type, what: str) -> list:
+    """``value`` as a list if it is a non-empty list or tuple of ``kind`` (``what`` names one item)."""
+    if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
+        raise TypeError(f"{name} must be a list or tuple (one {what} per problem), got "
+                        f"{type(value).__name__} {value!r:.80}")
+    if not value:
+        raise ValueError(f"{name} is empty: give at least one {what}")
+    for i, item in enumerate(value):
+        if not isinstance(item, kind):
+            raise TypeError(f"{name}[{i}] must be a {what}, got {type(item).__name__} {item!r:.80}")
+    return list(value)
+
+
+def same_length(**batches) -> int:
+    """The common length of the named batches (None entries skipped); ValueError listing the lengths."""
+    lengths = {name: len(value) for name, value in batches.items() if value is not None}
+    if len(set(lengths.values())) > 1:
+        raise ValueError("the batch must give one of each per problem; got "
+                         + ", ".join(f"{count} {name}" for name, count in lengths.items()))
+    return next(iter(lengths.values()))
+
+
+def finite_array(name: str, value, shape: tuple, meaning: str = ""):
+    """``value`` as a float numpy array of exactly ``shape`` with finite entries (None in ``shape``:
+    any length); ValueError naming the shape wanted and the one given."""
+    import numpy as np
+    try:
+        array = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be an array of numbers of shape {shape}{meaning}, got "
+                        f"{type(value).__name__}") from None
+    if array.ndim != len(shape) or any(want is not None and want != got for want, got in zip(shape, array.shape)):
+        wanted = "(" + ", ".join("any" if s is None else str(s) for s in shape) + (",)" if len(shape) == 1 else ")")
+        raise ValueError(f"{name} must have shape {wanted}{meaning}, got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite, got {int(np.sum(~np.isfinite(array)))} non-finite entries")
+    return array

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import signal
 import sys
 from pathlib import Path
 
 from biped_jax import checks, commands
-from biped_jax.report import outputs
+from biped_jax.report import interrupts, outputs
 from biped_jax.report.progress import compile_listener, console
 
 #: ``biped_jax.gait.problem.DYNAMICS``, written out so that ``--help`` does not import JAX (a test keeps them equal).
@@ -160,31 +161,53 @@ RUNS = {"reproduce": commands.run_reproduce, "kelly": commands.run_kelly, "donal
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The command line; returns the exit status (130 after Ctrl-C, with one line saying so)."""
+    """The command line; returns the exit status: 130 after Ctrl-C, 143 after SIGTERM (each stops the
+    run at the next safe point, with one line saying what was kept), 1 when the output folder cannot
+    be written to (one line naming it)."""
     args = _parser().parse_args(argv)
     if args.command == "donald" and args.resume and not args.faster:
         args.parser.error("--resume continues the --faster optimisation; give both or neither")
     if not hasattr(args, "out"):
         return args.run(args)
-    try:
-        with outputs.run_manifest(args.out, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv)),
-                                  resume=getattr(args, "resume", False)):
-            with _user_stream():
-                from biped_jax.report.compile_profile import profile_compiles
-                with profile_compiles(compile_listener) as profile:  # names what is compiling
-                    status = args.run(args)
-                if args.profile_compile:
-                    _report_compiles(profile.summary(), args.out)
-                return status
-    except KeyboardInterrupt:
-        listed = outputs.read_manifest(args.out)
-        kept = ", ".join(listed["files"]) if listed and listed["files"] else "nothing"
-        hint = ""
-        if listed and any(name.startswith("stages/") for name in listed["files"]):
-            hint = "; the same command with --resume continues from the finished stages"
-        console.print(f"interrupted: finished and kept in {args.out}: {kept} (see {args.out / outputs.MANIFEST})"
-                      + hint)
-        return 130
+    with interrupts.handled():
+        try:
+            return _run_in(args, ["biped-jax"] + (sys.argv[1:] if argv is None else list(argv)))
+        except KeyboardInterrupt as error:
+            number = getattr(error, "signal_number", signal.SIGINT)
+            console.print(_kept(args.out, f"{'interrupted' if number == signal.SIGINT else 'terminated'}: "),
+                          soft_wrap=True)
+            return interrupts.EXIT_STATUS[number]
+        except outputs.FolderInUse as error:
+            console.print(f"error: {error}", soft_wrap=True)
+            return 1
+        except OSError as error:  # the disk full, the folder removed or made read-only under the run
+            console.print(_kept(args.out, f"error: cannot write to {args.out} ({error.strerror or error}); "
+                                          f"files written before are intact; "), soft_wrap=True)
+            return 1
+
+
+def _run_in(args, command: list[str]) -> int:
+    """Runs the command under its manifest in ``args.out``; a stop request that no safe point saw
+    still ends the run as interrupted."""
+    with outputs.run_manifest(args.out, command, resume=getattr(args, "resume", False), say=console.print):
+        with _user_stream():
+            from biped_jax.report.compile_profile import profile_compiles
+            with profile_compiles(compile_listener) as profile:  # names what is compiling
+                status = args.run(args)
+            interrupts.checkpoint()
+            if args.profile_compile:
+                _report_compiles(profile.summary(), args.out)
+            return status
+
+
+def _kept(out: Path, first: str) -> str:
+    """One line: ``first``, then what the run finished and kept in ``out`` (its manifest's list)."""
+    listed = outputs.last_run() or outputs.read_manifest(out)
+    kept = ", ".join(listed["files"]) if listed and listed["files"] else "nothing"
+    hint = ""
+    if listed and any(name.startswith("stages/") for name in listed["files"]):
+        hint = "; the same command with --resume continues from the finished stages"
+    return f"{first}finished and kept in {out}: {kept} (see {out / outputs.MANIFEST})" + hint
 
 
 @contextlib.contextmanager

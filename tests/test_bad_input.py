@@ -217,6 +217,7 @@ def _api_rows():
 
     from biped_jax.codesign import problem as codesign
     from biped_jax.drives import model as drives
+    from biped_jax.drives import selection
     from biped_jax.dynamics import hybrid_step as hs
     from biped_jax.gait import problem as gait
     from biped_jax.robots import registry as robots
@@ -244,6 +245,21 @@ def _api_rows():
          "link_mass must be positive"),
         ("settings: negative friction", lambda: gait.GaitSettings(friction=-0.1), "friction"),
         ("settings: steps as float", lambda: gait.GaitSettings(spans=2.5), "got 2.5"),
+        ("gait_model: a string speed", lambda: gait.gait_model("12kg", "fast", 20.0), "speed must be a number"),
+        ("gait_model: a vector speed", lambda: gait.gait_model("12kg", np.ones(2), 20.0), "speed must be a number"),
+        ("co-design: no designs", lambda: codesign.solve_designs(None, [], 0.5, 20.0), "designs is empty"),
+        ("co-design: speeds for another batch", lambda: codesign.solve_designs(None, [reference] * 3, [0.5, 0.6],
+                                                                                20.0), "one value per design (3)"),
+        ("co-design: names for another batch", lambda: codesign.solve_designs(None, [reference], 0.5, 20.0,
+                                                                              names=["a", "b"]), "2 names"),
+        ("co-design: negative iterations", lambda: codesign.co_optimise(None, [reference], 0.5, 20.0, iterations=-1),
+         "iterations must be an integer"),
+        ("co-design: inverted ratio bounds", lambda: codesign.co_optimise(None, [reference], 0.5, 20.0,
+                                                                          ratio_bounds=(190, 14)), "ratio_bounds"),
+        ("drives: negative supply", lambda: drives.catalogue_drives("RE25-42V", "GP32A-66", -1.0), "supply_voltage"),
+        ("drives: ragged workspace", lambda: selection.JointWorkspace(np.linspace(0, 1, 5), np.zeros((4, 4)),
+                                                                      np.zeros((4, 4)), 1.0), "shape (5, any)"),
+        ("drives: no workspaces", lambda: selection.select_drive([], drives.load_catalogue()), "workspaces is empty"),
     ]
 
 
@@ -252,6 +268,59 @@ def test_every_impossible_api_value_is_named():
         with pytest.raises(ValueError) as error:
             call()
         assert message in str(error.value), (label, str(error.value))
+
+
+def _solver_rows(solver, model):
+    """(label, call, error type, text): the solver's batch API, each refused before anything compiles."""
+    import jax
+
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.multistart import solve_multistart
+    n = solver.settings.size
+    return [
+        ("two names, one model", lambda: solver.solve(["M2", "X"], [model]), ValueError, "2 names, 1 models"),
+        ("an empty batch", lambda: solver.solve([], []), ValueError, "names is empty"),
+        ("one name as a string", lambda: solver.solve("M2", [model]), TypeError, "names must be a list or tuple"),
+        ("not a model", lambda: solver.solve(["M2"], [3.0]), TypeError, "models[0] must be a GaitModel"),
+        ("x0 of the wrong shape", lambda: solver.solve(["M2"], [model], x0=np.zeros(5)), ValueError,
+         f"x0 must have shape (1, {n})"),
+        ("x0 with NaN", lambda: solver.solve(["M2"], [model], x0=np.full((1, n), np.nan)), ValueError,
+         "x0 must be finite"),
+        ("multipliers not a pair", lambda: solver.solve(["M2"], [model], multipliers=np.zeros(3)), TypeError,
+         "multipliers must be a pair"),
+        ("multipliers for two", lambda: solver.solve(["M2"], [model], multipliers=(np.zeros((2, 3)),
+                                                                                    np.zeros((2, 4)))),
+         ValueError, "multipliers[0] (equalities) must have shape (1, any)"),
+        ("power limit without starts", lambda: solver.minimise_power_limit(["M2"], [model], None), ValueError,
+         "x0 is None"),
+        ("power limit, starts for two", lambda: solver.minimise_power_limit(["M2"], [model], np.zeros((2, n))),
+         ValueError, f"x0 must have shape (1, {n})"),
+        ("multistart: names and models", lambda: solve_multistart(solver, ["M2"], [model, model]), ValueError,
+         "1 names, 2 models"),
+        ("multistart: no families", lambda: solve_multistart(solver, ["M2"], [model], families=()), ValueError,
+         "families is empty"),
+        ("gait_model under jit", lambda: jax.jit(lambda v: gait.gait_model("12kg", v, 20.0).speed)(0.5),
+         TypeError, "speed is traced"),
+        ("solver settings", lambda: type(solver)(settings={"spans": 4}), TypeError, "settings must be a GaitSettings"),
+    ]
+
+
+def test_the_solver_api_refuses_a_bad_batch_before_compiling():
+    import jax.numpy as jnp
+
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.solver import GaitSolver
+    solver = GaitSolver(gait.GaitSettings(spans=4, substeps=2))
+    # concrete 0-d arrays are numbers (sweeps build them)
+    model = gait.gait_model("12kg", jnp.asarray(0.5), np.float64(20.0), np.asarray(0.2))
+    assert float(model.speed) == 0.5 and float(model.power_limit) == 20.0
+    from biped_jax.report.compile_profile import profile_compiles
+    with profile_compiles() as profile:
+        for label, call, kind, message in _solver_rows(solver, model):
+            with pytest.raises(kind) as error:
+                call()
+            assert message in str(error.value), (label, str(error.value))
+    assert not profile.events, [event["name"] for event in profile.events]
 
 
 @pytest.mark.parametrize("content, message", [

@@ -223,3 +223,21 @@ def test_gaits_converge_to_kkt_points_checked_with_central_differences(interior_
         np.testing.assert_allclose(auto[5], jac_g, atol=1e-6 * np.max(np.abs(jac_g)))
         np.testing.assert_allclose(auto[3], grad + jac_h.T @ lam_eq + jac_g.T @ lam_in,
                                    atol=1e-5 * np.max(np.abs(grad)))
+
+
+def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
+    problem = nlp.ConstrainedProblem(hs071)
+    compiled = ip.compile_problem(problem)
+    starts, targets = np.tile([1.0, 5.0, 5.0, 1.0], (5, 1)), jnp.asarray([40.0, 38.0, 42.0, 41.0, 39.0])
+    whole = ip.solve(problem, starts, targets, compiled=compiled)
+    needed = ip.program_memory(compiled, ed.dense_structure(4, 10), jnp.asarray(starts), targets,
+                               (jnp.zeros((5, 1)), jnp.zeros((5, 9))))
+    assert needed > 0
+    said = []
+    chunked = ip.solve(problem, starts, targets, compiled=compiled, memory_budget=0.5 * needed, say=said.append)
+    assert len(said) == 1 and "solving it in chunks of" in said[0], said
+    assert chunked.status == whole.status and chunked.x.shape == (5, 4)
+    np.testing.assert_allclose(chunked.x, whole.x, atol=1e-10)
+    np.testing.assert_allclose(chunked.multipliers_in, whole.multipliers_in, atol=1e-9)
+    with pytest.raises(MemoryError, match="one problem's program needs about"):
+        ip.solve(problem, starts, targets, compiled=compiled, memory_budget=1.0)

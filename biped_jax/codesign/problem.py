@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax import checks
 from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one co-design namespace
     DriveDesign,
     REFERENCE_GEARHEAD,
@@ -76,6 +77,14 @@ SOLVER_OPTIONS = sqp.SQPOptions(max_iterations=300)
 
 # ----------------------------------------------------------------------------- batch evaluation
 
+def per_design(name: str, value, size: int) -> np.ndarray:
+    """``value`` (a number or one per design) as (size,) floats; ValueError naming a mismatch."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim > 1 or (array.ndim == 1 and array.shape[0] != size):
+        raise ValueError(f"{name} must be a number or one value per design ({size}), got shape {array.shape}")
+    return np.broadcast_to(array, (size,))
+
+
 def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                   names: list[str] | None = None, progress=None,
                   summary: Callable[[str], None] | None = None) -> list:
@@ -86,10 +95,13 @@ def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_l
     is the Joule energy (J), with status and per-group violations (the voltage limit among them);
     ``summary`` receives one line on the batch (statuses, gradients, time).
     """
+    designs = checks.sequence("designs", designs, DriveDesign, "DriveDesign")
     size = len(designs)
-    per_design = lambda value: np.broadcast_to(np.asarray(value, dtype=float), (size,))  # noqa: E731
-    speeds, limits, lengths = per_design(speed), per_design(power_limit), per_design(step_length)
+    speeds, limits, lengths = (per_design(label, value, size) for label, value in
+                               (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)))
     gait.check_problem(speeds, limits, lengths)
+    if names is not None:
+        checks.same_length(designs=designs, names=checks.sequence("names", names, str, "label (str)"))
     models = [gait_model(d, v, p, length) for d, v, p, length in zip(designs, speeds, limits, lengths)]
     names = names or [f"design {b}" for b in range(size)]
     solutions = solver.solve(names, models, x0=x0, progress=progress)
@@ -188,6 +200,14 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     :func:`nearest_gearhead` and re-solve to verify. ``solutions``: the designs' gaits if already solved
     (e.g. by :func:`solve_designs`), else they are solved first.
     """
+    designs = checks.sequence("designs", designs, DriveDesign, "DriveDesign")
+    checks.integer_in("iterations", iterations, 0, 10_000)
+    checks.number_in("max_step", max_step, 0.0, 10.0, "(log N)")
+    checks.number_in("min_step", min_step, 0.0, 10.0, "(log N)")
+    if not (len(ratio_bounds) == 2 and 0 < ratio_bounds[0] < ratio_bounds[1]):
+        raise ValueError(f"ratio_bounds must be (low, high) with 0 < low < high, got {ratio_bounds!r}")
+    gait.check_problem(*(per_design(label, value, len(designs)) for label, value in
+                         (("speed", speed), ("power_limit", power_limit), ("step_length", step_length))))
     say = progress or (lambda message: None)
     gradient = ratio_gradient(solver)
     catalogue = drive_model.load_catalogue()

@@ -257,6 +257,7 @@ def catalogue_drives(motor: str, gearhead: str, supply_voltage: float,
                      catalogue: Catalogue | None = None) -> JointDrives:
     """One catalogue motor behind one catalogue gearhead at every joint (fields of shape ()); raises
     ValueError naming an unknown part."""
+    checks.number_in("supply_voltage", supply_voltage, 0.0, math.inf, "V")
     catalogue = catalogue or load_catalogue()
     m, g = catalogue.motor(motor), catalogue.gearhead(gearhead)
     return JointDrives(ratio=jnp.asarray(g.ratio), efficiency=jnp.asarray(g.efficiency),

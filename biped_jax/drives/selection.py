@@ -10,9 +10,11 @@ the window, of the largest joint's |torque| (or |speed|) at each instant.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
+from biped_jax import checks
 from biped_jax.drives import model as drives
 from biped_jax.drives.model import MNM, RPM
 from biped_jax.report import outputs
@@ -33,6 +35,14 @@ class JointWorkspace:
     speed: np.ndarray
     torque: np.ndarray
     step_time: float
+
+    def __post_init__(self):
+        t = checks.finite_array("JointWorkspace.t", self.t, (None,), ": sample times, s")
+        checks.finite_array("JointWorkspace.speed", self.speed, (t.shape[0], None), ": one row per sample time")
+        checks.finite_array("JointWorkspace.torque", self.torque, np.shape(self.speed), ": the shape of speed")
+        checks.number_in("JointWorkspace.step_time", self.step_time, 0.0, math.inf, "s")
+        if t.shape[0] < 2 or np.any(np.diff(t) <= 0):
+            raise ValueError(f"JointWorkspace.t must be at least two increasing times, got {t.tolist()[:5]}...")
 
     def outside_impacts(self, window: float = IMPACT_WINDOW) -> np.ndarray:
         """Mask of the samples farther than window x t_f from either end, shape (T,)."""
@@ -70,6 +80,15 @@ def requirements(workspace: JointWorkspace, window: float = IMPACT_WINDOW) -> di
     }
 
 
+def _check_parts(workspace, motor, gear, supply_voltage, window) -> None:
+    for name, value, kind in (("workspace", workspace, JointWorkspace), ("motor", motor, drives.Motor),
+                              ("gear", gear, drives.Gearhead)):
+        if not isinstance(value, kind):
+            raise TypeError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
+    checks.number_in("supply_voltage", supply_voltage, 0.0, math.inf, "V")
+    checks.number_in("window", window, -1e-12, 0.5, "(fraction of the step)")
+
+
 def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gearhead,
                 supply_voltage: float, window: float = IMPACT_WINDOW) -> dict:
     """Checks one motor and gearhead on every joint's samples outside the impact window.
@@ -77,6 +96,7 @@ def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gea
     Returns {"feasible", "reason", "joule_energy_J", "mass_kg", "min_voltage_margin_V",
     "rms_motor_torque_mNm", "max_motor_rpm", ...}; reason names the first failed check with numbers.
     """
+    _check_parts(workspace, motor, gear, supply_voltage, window)
     drives.check_ratio(gear.ratio)
     inside = workspace.outside_impacts(window)
     speed, torque = workspace.speed[inside], workspace.torque[inside]
@@ -117,6 +137,10 @@ def select_drive(workspaces: list[JointWorkspace], catalogue: drives.Catalogue,
                  window: float = IMPACT_WINDOW) -> tuple[dict | None, list[dict]]:
     """Every winding x ratio checked on all given gaits (all must pass); feasible ones ranked by Joule
     energy per step summed over the gaits, then mass. Returns (best or None, all candidates)."""
+    workspaces = checks.sequence("workspaces", workspaces, JointWorkspace, "JointWorkspace")
+    if not isinstance(catalogue, drives.Catalogue):
+        raise TypeError("catalogue must be a Catalogue (drives.model.load_catalogue()), got "
+                        f"{type(catalogue).__name__}")
     candidates = []
     for motor in catalogue.motors.values():
         for gear in catalogue.gearheads.values():

@@ -11,6 +11,7 @@ from typing import Callable
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax import checks
 from biped_jax.gait import problem as gait
 from biped_jax.gait import verdict
 from biped_jax.gait.solver import GaitSolution, GaitSolver
@@ -43,6 +44,8 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitM
     heuristics. ``progress(stage, iteration, row)`` follows the solver of each stage ("starts", then
     "refined space"); ``finished(stage, problems)`` is called when a stage has solved all its problems.
     """
+    fine.check_batch(names, models)
+    families = checks.sequence("families", families, gait.StartFamily, "start family (gait.START_FAMILIES)")
     count = len(families)
     first_solver = coarse or fine
     x0 = jnp.stack([gait.initial_guess(m, first_solver.settings, fine.leg_length, family=f)

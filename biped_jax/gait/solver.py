@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax import checks
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.gait import problem as gait
 from biped_jax.gait import verdict
@@ -119,6 +120,11 @@ class GaitSolver:
     def __init__(self, settings: gait.GaitSettings = gait.GaitSettings(),
                  options: al.SolverOptions | sqp.SQPOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
                  require_refinement: bool = True, check_refinement: bool = True):
+        if not isinstance(settings, gait.GaitSettings):
+            raise TypeError(f"settings must be a GaitSettings, got {type(settings).__name__}")
+        if not isinstance(options, (ip.InteriorPointOptions, al.SolverOptions, sqp.SQPOptions)):
+            raise TypeError("options must be InteriorPointOptions, SolverOptions or SQPOptions, got "
+                            f"{type(options).__name__}")
         self.settings, self.options = settings, options
         self.require_refinement = require_refinement and check_refinement
         self.check_refinement = check_refinement
@@ -220,6 +226,26 @@ class GaitSolver:
         """:meth:`simulate` on the refinement check's grid (4x finer)."""
         return one_by_one(self._simulate_refined, x, models)
 
+    def check_batch(self, names, models, x0=None, multipliers=None) -> np.ndarray | None:
+        """Checks a batch before anything compiles: ``names`` a non-empty list of labels, ``models`` as
+        many :class:`~biped_jax.gait.problem.GaitModel`, ``x0`` None or finite of shape (B, n) with
+        n = ``settings.size``, ``multipliers`` None or (equalities (B, m_h), inequalities (B, m_g)).
+        Raises TypeError / ValueError naming the argument; returns x0 as a numpy array (or None)."""
+        names = checks.sequence("names", names, str, "label (str)")
+        models = checks.sequence("models", models, gait.GaitModel, "GaitModel (from gait_model)")
+        size = checks.same_length(names=names, models=models)
+        n = self.settings.size
+        if x0 is not None:
+            x0 = checks.finite_array("x0", x0, (size, n),
+                                     f": one start per model, each of length settings.size = {n}")
+        if multipliers is not None:
+            if not isinstance(multipliers, (list, tuple)) or len(multipliers) != 2:
+                raise TypeError("multipliers must be a pair (equalities (B, m_h), inequalities (B, m_g)), got "
+                                f"{type(multipliers).__name__}")
+            for label, value in zip(("multipliers[0] (equalities)", "multipliers[1] (inequalities)"), multipliers):
+                checks.finite_array(label, value, (size, None), ": one row per model")
+        return x0
+
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None, multipliers=None) -> list[GaitSolution]:
         """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts, and with the
@@ -228,6 +254,7 @@ class GaitSolver:
         gets (iteration, {"problem": b, "cost": (1,), "violation": (1,)}) per SLSQP iteration of problem
         b (also "name" and "problems", the batch size); with the interior point (iteration, row of (B,)
         arrays: "cost", "violation", "error", "done") after every block of iterations."""
+        x0 = self.check_batch(names, models, x0, multipliers)
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
         return self._report(names, models, self._solve_batch(x0, batch, progress, names, multipliers))
@@ -248,8 +275,11 @@ class GaitSolver:
         augmented-Lagrangian options raises TypeError (``solver.using(InteriorPointOptions(...))`` makes
         one sharing the compiled rollouts)."""
         options = self.options
+        if x0 is None:
+            raise ValueError("x0 is None: minimise_power_limit starts from gaits feasible at the models' "
+                             "own limits, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
+        x0 = self.check_batch(names, models, x0)
         batch = stack_tree(models)
-        x0 = np.asarray(x0, dtype=float)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
         if isinstance(options, ip.InteriorPointOptions):
             result = self._interior_point("limit", jnp.asarray(start), batch, progress)

@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import logging
+import os
 import time
 from typing import Any, Callable, NamedTuple
 
@@ -513,7 +515,8 @@ def batch_sharding(batch: int):
 def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOptions = InteriorPointOptions(),
           structure: exact_derivatives.Structure | None = None, compiled: CompiledInteriorPoint | None = None,
           multipliers: tuple[Any, Any] | None = None,
-          progress: Callable[[int, dict], None] | None = None) -> nlp.SolveResult:
+          progress: Callable[[int, dict], None] | None = None, memory_budget: float | None = None,
+          say: Callable[[str], None] | None = None) -> nlp.SolveResult:
     """Solves a batch of B problems of one shape in one compiled program.
 
     Args:
@@ -530,7 +533,10 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
         "done": (B,) bool}).
 
     The batch is padded to :func:`padded_batch` problems (copies of the first that never iterate), so
-    that batches of nearby sizes share a program.
+    that batches of nearby sizes share a program. A batch whose program needs more memory than
+    ``memory_budget`` bytes (default: :data:`MEMORY_FRACTION` of what the device has free, XLA's own
+    estimate of the compiled program) is solved in chunks that fit, one after another (``say``, default
+    a logged warning, tells how); a single problem that does not fit raises MemoryError before running.
 
     Returns an :class:`~biped_jax.optim.nlp.SolveResult`: ``outer_iterations`` counts interior-point
     iterations, ``gradients`` the problem evaluations (each derivative pass counted as its colours),
@@ -547,9 +553,95 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
     if structure is None:
         structure = exact_derivatives.dense_structure(size, h0.shape[0] + g0.shape[0])
     if multipliers is None:
-        y0, z0 = jnp.zeros((batch,) + h0.shape, x0.dtype), jnp.zeros((batch,) + g0.shape, x0.dtype)
-    else:
-        y0, z0 = (jnp.asarray(m, x0.dtype) for m in multipliers)
+        multipliers = (jnp.zeros((batch,) + h0.shape, x0.dtype), jnp.zeros((batch,) + g0.shape, x0.dtype))
+    multipliers = tuple(jnp.asarray(m, x0.dtype) for m in multipliers)
+    budget = available_memory() * MEMORY_FRACTION if memory_budget is None else memory_budget
+    chunk = _chunk_that_fits(compiled, structure, x0, params, multipliers, budget, say)
+    parts = []
+    for first in range(0, batch, chunk):
+        part = slice(first, min(first + chunk, batch))
+        parts.append(_solve_batch(compiled, options, structure, x0[part], jax.tree.map(lambda a: a[part], params),
+                                  tuple(m[part] for m in multipliers), progress, started))
+    return parts[0] if len(parts) == 1 else _joined(parts, time.perf_counter() - started)
+
+
+#: The share of the free device memory one batch's program may take (the rest: the arrays around it).
+MEMORY_FRACTION = 0.7
+
+
+def available_memory() -> float:
+    """Bytes free for a program on JAX's first device: an accelerator's free memory, or the host's
+    available memory (``MemAvailable``) on the CPU."""
+    device = jax.devices()[0]
+    stats = device.memory_stats() if device.platform != "cpu" else None
+    if stats and "bytes_limit" in stats:
+        return float(stats["bytes_limit"] - stats.get("bytes_in_use", 0))
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+
+
+def program_memory(compiled: CompiledInteriorPoint, structure, x0, params, multipliers) -> float:
+    """Bytes the iteration program of this batch (padded) needs, by XLA's analysis of the compiled
+    program (arguments, outputs and temporaries); the program is compiled here and kept by JAX, so the
+    solve that follows does not compile it again."""
+    padded = padded_batch(x0.shape[0])
+    sharding = batch_sharding(padded)  # as the solve will place the batch
+    shaped = lambda a: jax.ShapeDtypeStruct((padded,) + a.shape[1:], a.dtype, sharding=sharding)  # noqa: E731
+    shapes = jax.tree.map(lambda a: shaped(jnp.asarray(a)), (x0, params, multipliers))
+    state = jax.tree.map(shaped, jax.eval_shape(compiled.initial, shapes[0], shapes[1], shapes[2][0],
+                                                shapes[2][1], 0.1))
+    executable = compiled.block.lower(structure, shapes[1], state, jnp.asarray(1, jnp.int32)).compile()
+    stats = executable.memory_analysis()
+    if stats is None:  # a backend without the analysis: assume it fits
+        return 0.0
+    return float(stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
+                 - stats.alias_size_in_bytes)
+
+
+def _chunk_that_fits(compiled, structure, x0, params, multipliers, budget: float, say) -> int:
+    """The largest number of problems per program (the whole batch, or a :func:`padded_batch` size)
+    whose program fits in ``budget`` bytes, by XLA's memory analysis scaled with the batch."""
+    batch = x0.shape[0]
+    needed = program_memory(compiled, structure, x0, params, multipliers)
+    if needed <= budget:
+        return batch
+    per_problem = needed / padded_batch(batch)
+    chunk = max((b for b in range(1, batch) if padded_batch(b) == b and b * per_problem <= budget), default=0)
+    if chunk == 0:
+        raise MemoryError(f"one problem's program needs about {per_problem / 2**30:.2f} GiB, more than the "
+                          f"{budget / 2**30:.2f} GiB this device has free for it")
+    message = (f"a batch of {batch} problems needs about {needed / 2**30:.1f} GiB, more than the "
+               f"{budget / 2**30:.1f} GiB free for it: solving it in chunks of {chunk}, one after another")
+    (say or logging.getLogger(__name__).warning)(message)
+    return chunk
+
+
+def _joined(parts: list[nlp.SolveResult], wall_time_s: float) -> nlp.SolveResult:
+    """The results of consecutive chunks as one batch's (histories joined row by row, the last row of a
+    chunk that finished early repeated)."""
+    rows = max(len(p.history) for p in parts)
+    history = []
+    for r in range(rows):
+        chunk_rows = [p.history[min(r, len(p.history) - 1)] for p in parts]
+        history.append({k: np.concatenate([row[k] for row in chunk_rows]) for k in chunk_rows[0] if k != "x"})
+    history[-1]["x"] = np.concatenate([p.x for p in parts])
+    stacked = {field: np.concatenate([getattr(p, field) for p in parts])
+               for field in ("x", "cost", "equalities", "inequalities", "violation", "stationarity",
+                             "outer_iterations", "gradients", "multipliers_eq", "multipliers_in")}
+    return nlp.SolveResult(status=[s for p in parts for s in p.status], wall_time_s=wall_time_s,
+                           history=history, **stacked)
+
+
+def _solve_batch(compiled, options, structure, x0, params, multipliers, progress, started) -> nlp.SolveResult:
+    """One program's run over a batch that fits (see :func:`solve`)."""
+    batch = x0.shape[0]
+    y0, z0 = multipliers
     padded = padded_batch(batch)
     x0, y0, z0, params = jax.tree.map(lambda a: _pad(jnp.asarray(a), padded), (x0, y0, z0, params))
     sharding = batch_sharding(padded)

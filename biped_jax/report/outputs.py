@@ -27,6 +27,8 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any, Callable
 
+from biped_jax.report import interrupts
+
 MANIFEST = "manifest.json"
 #: Subfolder that receives an earlier run's files when a new run starts in the same folder.
 PREVIOUS = "previous"
@@ -52,8 +54,9 @@ def stamped(text: str):
 
 def check_output_dir(path: Path) -> Path:
     """Refuses, before any computing, an output folder that cannot be written: an existing file, a
-    path below a file, or a folder (or its nearest existing parent) without write permission. Creates
-    nothing. Raises ValueError naming the path and the reason; returns the path."""
+    path below a file, a folder (or its nearest existing parent) without write permission, or one the
+    system refuses to make or write in (tried, then removed: nothing is left behind). Raises ValueError
+    naming the path and the reason; returns the path."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"--out {path}: is a file, not a folder")
@@ -66,7 +69,31 @@ def check_output_dir(path: Path) -> Path:
         raise ValueError(f"--out {path}: {existing} is a file, so no folder can be made below it")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ValueError(f"--out {path}: {existing} is not writable")
+    _probe(path, existing)
     return path
+
+
+def _probe(path: Path, existing: Path) -> None:
+    """Makes the missing folders of ``path`` and a file in it, then removes them again: what the
+    permission bits do not tell (a path the OS refuses, a read-only or full file system, /proc)."""
+    made = []
+    try:
+        missing, folder = [], path
+        while folder != existing:  # existing is path or one of its parents
+            missing.append(folder)
+            folder = folder.parent
+        for folder in reversed(missing):
+            folder.mkdir()
+            made.append(folder)
+        handle, probe = tempfile.mkstemp(prefix=".probe.", dir=path)
+        os.close(handle)
+        os.remove(probe)
+    except OSError as error:
+        raise ValueError(f"--out {path}: cannot be written ({error.strerror or error})") from None
+    finally:
+        for folder in reversed(made):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
 
 def finite_or_none(value: Any) -> Any:
@@ -99,6 +126,8 @@ def _umask() -> int:
 def _atomic(path: Path, suffix: str, listed: bool = True):
     """Yields a temporary path in ``path``'s folder; moves it onto ``path`` only if the block ends
     without an exception (else removes it); ``listed`` adds it to the running manifest."""
+    if listed:  # a result file is a safe point to stop at (the manifest's own writes are not)
+        interrupts.checkpoint()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
@@ -196,6 +225,7 @@ def stage(out: Path, name: str, key: dict, compute: Callable[[], object], resume
 
     The files are Python pickles written by this package for this folder: load only your own."""
     import pickle
+    interrupts.checkpoint()  # between stages
     path = Path(out) / STAGES / f"{name}.pkl"
     if resume and path.is_file():
         try:
@@ -229,7 +259,8 @@ class _Run:
     def __init__(self, folder: Path, command: list[str]):
         self.folder = Path(folder)
         self.record = {"command": command, "state": "running", "versions": _versions(),
-                       "started": _now(), "ended": None, "files": [], "message": None}
+                       "started": _now(), "ended": None, "files": [], "message": None,
+                       "process": {"pid": os.getpid(), "host": platform.node()}}
 
     def write(self):
         path = self.folder / MANIFEST
@@ -277,39 +308,100 @@ def _set_aside_previous(folder: Path) -> None:
             target = aside / name
             target.parent.mkdir(parents=True, exist_ok=True)
             os.replace(source, target)
-    if aside.is_dir():
-        os.replace(folder / MANIFEST, aside / MANIFEST)
+    aside.mkdir(exist_ok=True)  # the earlier manifest is kept with them: what that run was and how it ended
+    os.replace(folder / MANIFEST, aside / MANIFEST)
+
+
+class FolderInUse(ValueError):
+    """Another live process is running a command in the output folder."""
+
+
+#: The state an earlier run's manifest is given when it said ``running`` and its process is gone.
+DIED = "died"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it exists, under another user
+        return True
+    return True
+
+
+def _check_earlier(folder: Path, earlier: dict | None, say: Callable[[str], None], resume: bool) -> dict | None:
+    """An earlier manifest still saying ``running``: refused (FolderInUse) when its process lives on
+    this host, else reported and marked :data:`DIED` (the process was killed, or the machine stopped)."""
+    if not earlier or earlier.get("state") != "running":
+        return earlier
+    process = earlier.get("process") or {}
+    pid, host = process.get("pid"), process.get("host")
+    if isinstance(pid, int) and host == platform.node() and pid != os.getpid() and _alive(pid):
+        raise FolderInUse(f"--out {folder}: another run (process {pid}, started {earlier.get('started')}: "
+                          f"{' '.join(earlier.get('command') or [])}) is writing here; wait for it to end "
+                          "or give another --out")
+    files = earlier.get("files") or []
+    say(f"an earlier run in {folder} (started {earlier.get('started')}) stopped without finishing (its process "
+        f"is gone: killed, or the machine stopped); it had written {', '.join(files) or 'nothing'}"
+        + ("; this run continues from its finished stages" if resume else f"; set aside in {folder / PREVIOUS}"))
+    earlier = {**earlier, "state": DIED, "message": "the process ended without closing its manifest"}
+    with _atomic(folder / MANIFEST, ".tmp", listed=False) as temporary:
+        temporary.write_text(json_text(earlier))
+    return earlier
 
 
 @contextlib.contextmanager
-def run_manifest(folder: Path, command: list[str] | None = None, resume: bool = False):
+def run_manifest(folder: Path, command: list[str] | None = None, resume: bool = False,
+                 say: Callable[[str], None] = lambda message: None):
     """Keeps ``folder/manifest.json`` for the block: state ``running`` with no files at the start,
     each file written through this module listed as it lands, and at the end ``completed``,
     ``interrupted`` (Ctrl-C) or ``failed`` (with the error), and the end time. The files an earlier
     run's manifest listed are moved to ``folder/previous/`` first, unless ``resume`` (the run continues
-    from them; the manifest notes the run it resumed). The exception, if any, propagates."""
-    global _current
+    from them; the manifest notes the run it resumed). An earlier manifest that still says
+    ``running`` is reported through ``say`` and marked :data:`DIED` when its process is gone, and
+    refused (:class:`FolderInUse`) when it still runs. The exception, if any, propagates."""
+    global _current, _last
+    _last = None
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    earlier = read_manifest(folder) if resume else None
+    earlier = _check_earlier(folder, read_manifest(folder), say, resume)
     if not resume:
         _set_aside_previous(folder)
     run = _Run(folder, list(sys.argv) if command is None else command)
-    if earlier:
+    if earlier and resume:
         run.record["resumed_from"] = {k: earlier.get(k) for k in ("started", "state", "files")}
     previous, _current = _current, run
-    run.write()
+    _last = run.record
+    failing = False
     try:
+        run.write()
         yield run
-    except KeyboardInterrupt:
-        run.record.update(state="interrupted", message="interrupted by the user (Ctrl-C)")
+    except KeyboardInterrupt as error:
+        failing = True
+        run.record.update(state="interrupted", message=str(error) if isinstance(error, interrupts.Interrupted)
+                          else interrupts.REASON[interrupts.signal.SIGINT])
         raise
     except BaseException as error:
+        failing = True
         run.record.update(state="failed", message=f"{type(error).__name__}: {error}")
         raise
     else:
         run.record["state"] = "completed"
     finally:
         run.record["ended"] = _now()
-        run.write()
         _current = previous
+        try:
+            run.write()
+        except OSError:
+            if not failing:
+                raise  # else the error under way says more (e.g. the disk is full: so is the manifest's)
+
+
+_last: dict | None = None  # the record of the latest run_manifest block
+
+
+def last_run() -> dict | None:
+    """The manifest record of the latest :func:`run_manifest` block in this process (as it is in memory,
+    also when the file could not be written), or None."""
+    return _last

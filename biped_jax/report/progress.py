@@ -8,6 +8,8 @@ import time
 
 from rich.console import Console
 
+from biped_jax.report import interrupts
+
 console = Console(stderr=True)
 
 
@@ -33,6 +35,7 @@ def live_progress(quiet_prefixes: tuple[str, ...] = ()):
         show(latest[0] if name is None else f"compiling {name} (XLA; the first run of a program)")
 
     def progress(message: str, task: tuple[str, int, int] | None = None) -> None:
+        interrupts.checkpoint()  # every progress report is a safe point to stop at
         latest[0] = message
         show(message)
         if task is not None:
@@ -92,6 +95,8 @@ listeners: list = []
 
 
 def compile_listener(name: str | None) -> None:
-    """Tells the open live displays that ``name`` is compiling (None: compiling ended)."""
+    """Tells the open live displays that ``name`` is compiling (None: compiling ended); before and after
+    a compilation is a safe point to stop at (:func:`biped_jax.report.interrupts.checkpoint`)."""
+    interrupts.checkpoint()
     for listener in listeners:
         listener(name)
