@@ -274,8 +274,10 @@ def _solver_rows(solver, model):
     """(label, call, error type, text): the solver's batch API, each refused before anything compiles."""
     import jax
 
+    from biped_jax.dynamics import hybrid_step as hs
     from biped_jax.gait import problem as gait
     from biped_jax.gait.multistart import solve_multistart
+    from biped_jax.robots.design import design_layout
     n = solver.settings.size
     return [
         ("two names, one model", lambda: solver.solve(["M2", "X"], [model]), ValueError, "2 names, 1 models"),
@@ -302,6 +304,10 @@ def _solver_rows(solver, model):
         ("gait_model under jit", lambda: jax.jit(lambda v: gait.gait_model("12kg", v, 20.0).speed)(0.5),
          TypeError, "speed is traced"),
         ("solver settings", lambda: type(solver)(settings={"spans": 4}), TypeError, "settings must be a GaitSettings"),
+        ("a design that is not one", lambda: hs.with_design(solver.biped, 3), TypeError, "design must be a Design"),
+        ("a biped that is not one", lambda: hs.with_design(3, model.design), TypeError, "biped must be a PlanarBiped"),
+        ("a layout of no model", lambda: design_layout(3), TypeError, "mj_model must be a mujoco.MjModel"),
+        ("an unknown mass class", lambda: hs.load_planar_biped("20kg"), ValueError, "unknown mass class '20kg'"),
     ]
 
 

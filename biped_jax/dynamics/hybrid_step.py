@@ -85,6 +85,8 @@ def with_design(biped: PlanarBiped, design: Design) -> PlanarBiped:
     """Both models of ``biped`` carrying ``design`` (traceable; vmap over designs). A concrete design
     is checked first (:func:`~biped_jax.robots.design.check_design`: ValueError naming a non-positive or
     non-finite mass, a negative armature or damping, a wrong shape)."""
+    if not isinstance(biped, PlanarBiped):
+        raise TypeError(f"biped must be a PlanarBiped (load_planar_biped(mass_class)), got {type(biped).__name__}")
     pinned_layout, floating_layout = planar_layouts()
     if checks.concrete(design):
         check_design(design, pinned_layout)

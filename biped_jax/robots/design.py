@@ -79,6 +79,10 @@ def design_layout(mj_model: mujoco.MjModel, links=PLANAR_LINKS, joints=PLANAR_AC
     """Builds the layout of ``links`` (body names), ``joints`` (joint names) and the links carrying
     their drives (``drive_mounts``, one of ``links`` per joint) in ``mj_model``. The design links'
     inertias must be diagonal in the body frame (MJCF ``diaginertia``), as in every shipped model."""
+    if not isinstance(mj_model, mujoco.MjModel):
+        raise TypeError(f"mj_model must be a mujoco.MjModel (biped_jax.load_mj_model(name)), got "
+                        f"{type(mj_model).__name__}")
+
     def index(kind, names):
         ids = []
         for name in names:
@@ -131,9 +135,18 @@ def nominal_design(mj_model: mujoco.MjModel, layout: DesignLayout) -> Design:
     )
 
 
+def _check_types(design, layout) -> None:
+    if not isinstance(design, Design):
+        raise TypeError(f"design must be a Design (e.g. biped_jax.dynamics.hybrid_step.planar_design()), got "
+                        f"{type(design).__name__}")
+    if not isinstance(layout, DesignLayout):
+        raise TypeError(f"layout must be a DesignLayout (design_layout(mj_model)), got {type(layout).__name__}")
+
+
 def check_design(design: Design, layout: DesignLayout) -> Design:
     """Raises ValueError naming the offending value if ``design`` has a wrong shape, a non-positive
     mass, or a negative armature or damping. Call it outside ``jit`` (it reads concrete values)."""
+    _check_types(design, layout)
     expected = {"link_mass": layout.body_ids.shape, "joint_armature": layout.dof_ids.shape,
                 "joint_damping": layout.dof_ids.shape, "drive_mass": layout.dof_ids.shape}
     for field, shape in expected.items():
@@ -200,6 +213,7 @@ def apply_design(model, layout: DesignLayout, design: Design):
     """Returns ``model`` (an ``mjx.Model``) carrying ``design``; traceable, so one compiled program
     serves every design under ``vmap``. Inertias scale with mass (each link keeps its shape), then the
     drives are added as point masses at their joints."""
+    _check_types(design, layout)
     ids = layout.body_ids
     scale = design.link_mass / model.body_mass[ids]
     model = set_link_inertia(model, layout, *with_drive_masses(
