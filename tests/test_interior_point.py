@@ -216,9 +216,9 @@ def test_gaits_converge_to_kkt_points_checked_with_central_differences(interior_
         assert np.max(np.abs(stationarity)) < KKT_TOLERANCE * np.max(np.abs(grad))
         assert np.max(np.abs(lam_in * g)) < 1e-6  # complementarity
         # the autodiff Jacobians the solver used equal the central differences (float64)
+        problem, structure = solver._structures["energy"]
         auto = jax.jit(ed.derivatives, static_argnums=0)(
-            solver.problem, jnp.asarray(solution.x), model, 1.0, jnp.asarray(lam_eq), jnp.asarray(lam_in),
-            solver._structures["energy"])
+            problem, jnp.asarray(solution.x), model, 1.0, jnp.asarray(lam_eq), jnp.asarray(lam_in), structure)
         np.testing.assert_allclose(auto[4], jac_h, atol=1e-6 * np.max(np.abs(jac_h)))
         np.testing.assert_allclose(auto[5], jac_g, atol=1e-6 * np.max(np.abs(jac_g)))
         np.testing.assert_allclose(auto[3], grad + jac_h.T @ lam_eq + jac_g.T @ lam_in,

@@ -42,39 +42,66 @@ CONSTRAINT_GROUPS = {
 }
 
 
-def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: GaitSettings) -> dict:
-    """Each group's residuals in its own unit: equalities (= 0) and inequalities (<= 0)."""
-    tr, impact = trajectory, trajectory.touchdown
-    knees = tr.q[:, jnp.array([1, 4])]
-    fx, fz = tr.ground_force[:, 0], tr.ground_force[:, 1]
-    lx, lz = impact.impulse
-    power = tr.joint_power
+#: The groups of one row block per grid sample (or two: a two-sided bound), laid out as
+#: (blocks, samples, components) and flattened in that order; the others are the boundary groups (the
+#: shooting defects, the touchdown and the periodicity). ``swing_foot_height`` leaves out the first and the
+#: last sample (the feet are on the ground there).
+SAMPLE_GROUPS = ("swing_foot_height", "heights", "knee_range", "vertical_force", "friction_cone",
+                 "torque_bound", "power_limit", "voltage")
+
+
+def sample_groups(q, u, ground_force, swing_foot, heights, joint_speed, model: GaitModel,
+                  settings: GaitSettings) -> dict:
+    """The per-sample groups at N samples (arrays (N, ...) of :class:`GaitTrajectory`'s fields), each
+    of shape (blocks, N, components) in its own unit (``swing_foot_height`` at every sample)."""
+    knees = q[:, jnp.array([1, 4])]
+    fx, fz = ground_force[:, 0], ground_force[:, 1]
     return {
-        "continuity_angle": tr.continuity[:, 0],
-        "continuity_rate": tr.continuity[:, 1],
-        "touchdown_position": jnp.array([tr.swing_foot[-1, 0] - model.step_length, tr.swing_foot[-1, 1]]),
-        "periodicity_angle": impact.q[:1] - tr.q[0, :1],
-        "periodicity_rate": impact.qd - tr.qd[0],
-        "swing_foot_height": -tr.swing_foot[1:-1, 1],
-        "touchdown_descending": tr.swing_foot_velocity[1:],
-        "heights": -tr.heights.ravel(),
-        "knee_range": jnp.concatenate([-knees.ravel(), (knees - settings.knee_max).ravel()]),
-        "vertical_force": -fz,
-        "friction_cone": jnp.concatenate([fx - settings.friction * fz, -fx - settings.friction * fz]),
-        "torque_bound": _two_sided(tr.u, settings.torque_bound),
-        "power_limit": _two_sided(power, model.power_limit),
-        "impact_impulse": jnp.array([-lz, lx - settings.friction * lz, -lx - settings.friction * lz]),
-        "liftoff": -impact.old_stance_foot_velocity[1:],
-        "voltage": _two_sided(drive_model.required_voltage(tr.u, tr.joint_speed, model.drives),
-                              model.drives.supply_voltage),
+        "swing_foot_height": -swing_foot[None, :, 1:2],
+        "heights": -heights[None],
+        "knee_range": jnp.stack([-knees, knees - settings.knee_max]),
+        "vertical_force": -fz[None, :, None],
+        "friction_cone": jnp.stack([fx - settings.friction * fz, -fx - settings.friction * fz])[..., None],
+        "torque_bound": _two_sided_blocks(u, settings.torque_bound),
+        "power_limit": _two_sided_blocks(joint_speed * u, model.power_limit),
+        "voltage": _two_sided_blocks(drive_model.required_voltage(u, joint_speed, model.drives),
+                                     model.drives.supply_voltage),
     }
 
 
-def _two_sided(value, bound):
-    """|value| <= bound as the two smooth rows value - bound and -value - bound (flattened): |value|
-    has a kink at 0, where a row far from active would still make a Newton model's dual residual jump
-    by its multiplier times its gradient."""
-    return jnp.concatenate([(value - bound).ravel(), (-value - bound).ravel()])
+def boundary_groups(trajectory_ends: dict, model: GaitModel, settings: GaitSettings) -> dict:
+    """The touchdown's and the periodicity's groups from the step's first sample (q0, qd0) and its
+    last (swing_foot_end (2,), swing_foot_velocity (2,), touchdown)."""
+    e = trajectory_ends
+    impact = e["touchdown"]
+    lx, lz = impact.impulse
+    return {
+        "touchdown_position": jnp.array([e["swing_foot_end"][0] - model.step_length, e["swing_foot_end"][1]]),
+        "periodicity_angle": impact.q[:1] - e["q0"][:1],
+        "periodicity_rate": impact.qd - e["qd0"],
+        "touchdown_descending": e["swing_foot_velocity"][1:],
+        "impact_impulse": jnp.array([-lz, lx - settings.friction * lz, -lx - settings.friction * lz]),
+        "liftoff": -impact.old_stance_foot_velocity[1:],
+    }
+
+
+def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: GaitSettings) -> dict:
+    """Each group's residuals in its own unit: equalities (= 0) and inequalities (<= 0)."""
+    tr = trajectory
+    samples = sample_groups(tr.q, tr.u, tr.ground_force, tr.swing_foot, tr.heights, tr.joint_speed, model, settings)
+    samples["swing_foot_height"] = samples["swing_foot_height"][:, 1:-1]
+    ends = {"q0": tr.q[0], "qd0": tr.qd[0], "swing_foot_end": tr.swing_foot[-1],
+            "swing_foot_velocity": tr.swing_foot_velocity, "touchdown": tr.touchdown}
+    return {"continuity_angle": tr.continuity[:, 0], "continuity_rate": tr.continuity[:, 1],
+            **{name: value.ravel() for name, value in samples.items()},
+            **boundary_groups(ends, model, settings)}
+
+
+def _two_sided_blocks(value, bound):
+    """|value| <= bound as the two smooth blocks value - bound and -value - bound, (2, *value.shape):
+    |value| has a kink at 0, where a row far from active would still make a Newton model's dual
+    residual jump by its multiplier times its gradient."""
+    return jnp.stack([value - bound, -value - bound])
 
 
 _SCALES = {"m": LENGTH_SCALE, "rad": 1.0, "rad/s": RATE_SCALE, "m/s": LENGTH_SCALE, "N": FORCE_SCALE,

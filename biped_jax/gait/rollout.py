@@ -40,6 +40,49 @@ def actuated_torque(mass, bias, qdd):
 
 
 
+def rk4(dynamics, state, inputs):
+    """One Runge-Kutta step of the stance angle's zero dynamics: state (theta, rate), inputs (reference
+    (3, 4) at the step's start, middle and end, and the step dt in s); returns the next state twice
+    (carry and output (2,) of a scan)."""
+    start, middle, end, dt = inputs
+
+    def acceleration(theta, theta_dot, ref):
+        q, qd = _assemble(theta, ref[0]), _assemble(theta_dot, ref[1])
+        mass, bias, _ = dynamics.terms(q, qd)
+        return stance_acceleration(mass, bias, ref[2])
+
+    theta, rate = state
+    k1 = (rate, acceleration(theta, rate, start))
+    k2 = (rate + 0.5 * dt * k1[1], acceleration(theta + 0.5 * dt * k1[0], rate + 0.5 * dt * k1[1], middle))
+    k3 = (rate + 0.5 * dt * k2[1], acceleration(theta + 0.5 * dt * k2[0], rate + 0.5 * dt * k2[1], middle))
+    k4 = (rate + dt * k3[1], acceleration(theta + dt * k3[0], rate + dt * k3[1], end))
+    theta_next = theta + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+    rate_next = rate + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+    return (theta_next, rate_next), jnp.stack([theta_next, rate_next])
+
+
+def shoot(dynamics, node, starts, middles, ends, dt):
+    """The stance state after every step of one shooting segment, (steps, 2), from ``node`` (2,) with
+    the reference (steps, 3, 4) at the steps' starts, middles and ends and the steps dt (steps,), s."""
+    return jax.lax.scan(lambda state, inputs: rk4(dynamics, state, inputs), (node[0], node[1]),
+                        (starts, middles, ends, dt))[1]
+
+
+def sample_outputs(dynamics, theta, rate, ref):
+    """The pinned state, accelerations, torques, ground force and points of interest at one sample from
+    the stance state and the reference (3, 4)."""
+    q, qd = _assemble(theta, ref[0]), _assemble(rate, ref[1])
+    mass, bias, state = dynamics.terms(q, qd)
+    qdd = _assemble(stance_acceleration(mass, bias, ref[2]), ref[2])
+    force, positions = dynamics.outputs(q, qd, qdd, state)
+    return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
+
+
+def time_scale(step_time):
+    """Factors from derivatives in normalised time to time derivatives, shaped to scale (3, ..., 4)."""
+    return jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
+
+
 def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
     """One rollout of the step (pure; vmap over x and model): the prescribed joints, the stance
     angle's zero dynamics by RK4 from every shooting node over its segment (all segments at once),
@@ -50,47 +93,22 @@ def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: Ga
     segments, per_segment = settings.segments, settings.steps // settings.segments
     s = grid(settings)
     midpoints = 0.5 * (s[1:] + s[:-1])
-    scale = jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
+    scale = time_scale(step_time)
     at_grid = jnp.stack(reference(x, settings, s)) * scale          # (3, T + 1, 4): q_a, qd_a, qdd_a
     at_mid = jnp.stack(reference(x, settings, midpoints)) * scale   # (3, T, 4)
     h = jnp.asarray(np.diff(s)) * step_time
 
-    def acceleration(theta, theta_dot, ref):
-        q, qd = _assemble(theta, ref[0]), _assemble(theta_dot, ref[1])
-        mass, bias, _ = dynamics.terms(q, qd)
-        return stance_acceleration(mass, bias, ref[2])
-
-    def rk4(state, inputs):
-        start, middle, end, dt = inputs
-        theta, rate = state
-        k1 = (rate, acceleration(theta, rate, start))
-        k2 = (rate + 0.5 * dt * k1[1], acceleration(theta + 0.5 * dt * k1[0], rate + 0.5 * dt * k1[1], middle))
-        k3 = (rate + 0.5 * dt * k2[1], acceleration(theta + 0.5 * dt * k2[0], rate + 0.5 * dt * k2[1], middle))
-        k4 = (rate + dt * k3[1], acceleration(theta + dt * k3[0], rate + dt * k3[1], end))
-        theta_next = theta + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
-        rate_next = rate + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
-        return (theta_next, rate_next), jnp.stack([theta_next, rate_next])
-
     def by_segment(a):  # (3, T, 4) -> (segments, T / segments, 3, 4)
         return jnp.swapaxes(a, 0, 1).reshape(segments, per_segment, 3, 4)
 
-    def shoot(node, starts, middles, ends, dt):
-        return jax.lax.scan(rk4, (node[0], node[1]), (starts, middles, ends, dt))[1]
-
     nodes = stance_nodes(x, settings)
-    after = jax.vmap(shoot)(nodes, by_segment(at_grid[:, :-1]), by_segment(at_mid),
-                            by_segment(at_grid[:, 1:]), h.reshape(segments, per_segment))  # (segments, T / segments, 2)
+    after = jax.vmap(lambda *a: shoot(dynamics, *a))(
+        nodes, by_segment(at_grid[:, :-1]), by_segment(at_mid), by_segment(at_grid[:, 1:]),
+        h.reshape(segments, per_segment))                                 # (segments, T / segments, 2)
     stance = jnp.concatenate([jnp.concatenate([nodes[:, None], after[:, :-1]], axis=1).reshape(-1, 2),
                               after[-1, -1:]])                            # (T + 1, 2)
-
-    def outputs(theta_k, rate_k, ref):
-        q, qd = _assemble(theta_k, ref[0]), _assemble(rate_k, ref[1])
-        mass, bias, state = dynamics.terms(q, qd)
-        qdd = _assemble(stance_acceleration(mass, bias, ref[2]), ref[2])
-        force, positions = dynamics.outputs(q, qd, qdd, state)
-        return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
-
-    q, qd, qdd, u, force, positions = jax.vmap(outputs)(stance[:, 0], stance[:, 1], jnp.swapaxes(at_grid, 0, 1))
+    q, qd, qdd, u, force, positions = jax.vmap(lambda *a: sample_outputs(dynamics, *a))(
+        stance[:, 0], stance[:, 1], jnp.swapaxes(at_grid, 0, 1))
     _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
     return GaitTrajectory(
         t=jnp.asarray(s) * step_time, weights=jnp.asarray(simpson_weights(settings)) * step_time,

@@ -16,7 +16,7 @@ import numpy as np
 from biped_jax import checks
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.gait import problem as gait
-from biped_jax.gait import verdict
+from biped_jax.gait import segmented, verdict
 from biped_jax.optim import augmented_lagrangian as al
 from biped_jax.optim import nlp
 from biped_jax.optim import coloured
@@ -147,7 +147,7 @@ class GaitSolver:
 
         self.limit_problem = nlp.ConstrainedProblem(limit_problem)
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
-        self._structures = {}  # problem kind -> its derivatives' colouring (probed on first use)
+        self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
         self._value = jax.jit(self.problem.evaluate)
 
         self.compiled = al.compile_problem(self.problem)
@@ -198,15 +198,21 @@ class GaitSolver:
         """The batched interior point on the energy problem (``kind`` "energy") or the smallest power
         limit's ("limit"), its colouring probed at the first problem's start and its programs compiled
         on first use, both kept for later batches of the same shape."""
-        problem = self.problem if kind == "energy" else self.limit_problem
         if kind not in self._structures:
+            problem = self.problem if kind == "energy" else self.limit_problem
             first = jax.tree.map(lambda a: a[0], batch)
-            self._structures[kind] = exact_derivatives.probe_structure(
+            structure = exact_derivatives.probe_structure(
                 problem, np.asarray(x0[0]), first, linear_columns=() if kind == "energy" else (x0.shape[1] - 1,))
+            if self.settings.segments > 1:  # the split by segment, where it needs fewer directions
+                local = segmented.local_problem(self.biped, self.settings, kind)
+                if local.directions < structure.colours:
+                    problem = dataclasses.replace(problem, local=local)
+            self._structures[kind] = (problem, structure)
+        problem, structure = self._structures[kind]
         key = (kind, ip.loop_options(self.options))
         if key not in self._interior:
             self._interior[key] = ip.compile_problem(problem, self.options)
-        return ip.solve(problem, x0, batch, self.options, structure=self._structures[kind],
+        return ip.solve(problem, x0, batch, self.options, structure=structure,
                         compiled=self._interior[key], multipliers=multipliers, progress=progress)
 
     def _solve_batch(self, x0, batch, progress, names, multipliers=None):

@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.optim import coloured, nlp
+from biped_jax.optim import coloured, local_derivatives, nlp
 
 
 @jax.tree_util.register_dataclass
@@ -99,8 +99,12 @@ def derivatives(problem: nlp.ConstrainedProblem, x, params, weight, y, z, struct
       y, z: multipliers of h (m_h,) and g (m_g,).
       structure: the colouring (:func:`probe_structure` or :func:`dense_structure`).
 
-    Returns (f, h, g, grad L (n,), jac h (m_h, n), jac g (m_g, n), hessian of L (n, n)).
+    Returns (f, h, g, grad L (n,), jac h (m_h, n), jac g (m_g, n), hessian of L (n, n)). A problem with
+    a ``local`` split takes it instead of the colouring
+    (:func:`biped_jax.optim.local_derivatives.derivatives`).
     """
+    if problem.local is not None:
+        return local_derivatives.derivatives(problem.local, x, params, weight, y, z)
     def gradient(point):
         def lagrangian(point):
             f, h, g = problem.evaluate(point, params)
@@ -122,3 +126,8 @@ def derivatives(problem: nlp.ConstrainedProblem, x, params, weight, y, z, struct
     hessian = jnp.where(structure.hessian_pattern, hess_t[columns], 0.0)  # row j: H[:, j] (symmetric)
     hessian = 0.5 * (hessian + hessian.T)
     return f, h, g, grad, jacobian[:h.shape[0]], jacobian[h.shape[0]:], hessian
+
+
+def directions(problem: nlp.ConstrainedProblem, structure: Structure) -> int:
+    """Direction vectors one call of :func:`derivatives` pushes through the problem."""
+    return structure.colours if problem.local is None else problem.local.directions

@@ -440,7 +440,8 @@ def _iterate(problem, options, structure, params, st: State) -> State:
                  f=keep(f, jnp.where(moved, f_t, f)), h=keep(h_raw, jnp.where(moved, h_t, h_raw)),
                  g=keep(g_raw, jnp.where(moved, g_t, g_raw)),
                  error=error, stationarity=stationarity, iteration=st.iteration + 1, acceptable=acceptable,
-                 failures=failures, evaluations=st.evaluations + structure.colours + backtracks + 2,
+                 failures=failures,
+                 evaluations=st.evaluations + exact_derivatives.directions(problem, structure) + backtracks + 2,
                  code=code.astype(jnp.int32), scale_f=w, scale_h=scale_h, scale_g=scale_g)
 
 

@@ -38,10 +38,14 @@ class ConstrainedProblem:
       residuals: optional ``(x, params) -> (r, h, g)`` with f = r . r. When given, each inner problem
         is preconditioned by the Gauss-Newton matrix of the augmented Lagrangian (a change of
         variables x = x_k + P z with P^T H P = I), which L-BFGS then sees as well-conditioned.
+      local: optional :class:`~biped_jax.optim.local_derivatives.LocalProblem`, the same rows split by
+        segment: the interior point's exact derivatives then cost a segment's columns
+        (:func:`biped_jax.optim.exact_derivatives.derivatives`).
     """
 
     evaluate: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]]
     residuals: Callable[[jax.Array, Any], tuple[jax.Array, jax.Array, jax.Array]] | None = None
+    local: Any = None
 
     @classmethod
     def from_functions(cls, objective, equalities, inequalities) -> "ConstrainedProblem":

@@ -1,0 +1,217 @@
+"""The gait problem split by shooting segment (:class:`biped_jax.optim.local_derivatives.LocalProblem`),
+for exact derivatives at the cost of a segment's columns rather than of the whole problem's colours.
+
+Segment k owns its grid samples (its node and the steps after it; the last segment also the step's end)
+and its shooting defect; it reads its node, the control points whose B-splines reach it and the next
+node. The boundary rows (touchdown, periodicity, impact) read the first sample (the first node and the
+first span's control points) and the last segment's columns, whose rollout they repeat. The rows are the
+same functions as :func:`biped_jax.gait.rollout.simulate` and :func:`biped_jax.gait.constraints.
+constraint_groups` compute (shared code), in the problem's order by a fixed permutation; a test checks
+the split against the problem to rounding.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics.stance import stance_dynamics
+from biped_jax.gait import constraints
+from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
+from biped_jax.gait.settings import GaitModel, GaitSettings
+from biped_jax.gait.splines import basis, grid, simpson_weights
+from biped_jax.optim.local_derivatives import LocalProblem
+from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP
+
+
+def _control_columns(settings: GaitSettings) -> np.ndarray:
+    """x's column of every control point's entry, (control_points, 4): point 0 mirrors the last free
+    point with the legs swapped (:func:`biped_jax.gait.splines.control_points`)."""
+    free = 2 + np.arange(4 * (settings.control_points - 1)).reshape(settings.control_points - 1, 4)
+    return np.concatenate([free[-1, np.asarray(SWAP)][None], free])
+
+
+def _node_columns(settings: GaitSettings) -> np.ndarray:
+    """x's columns of every shooting node (angle, rate), (segments, 2)."""
+    later = 2 + 4 * (settings.control_points - 1) + np.arange(2 * (settings.segments - 1)).reshape(-1, 2)
+    return np.concatenate([np.array([[0, 1]]), later])
+
+
+def _layout(settings: GaitSettings):
+    """Per segment: its control-point window (first point), the basis at its samples and midpoints
+    restricted to the window, its steps in normalised time and its Simpson weights."""
+    segments, per = settings.segments, settings.steps // settings.segments
+    window = settings.spans // settings.segments + settings.degree
+    s = grid(settings)
+    mid = 0.5 * (s[1:] + s[:-1])
+    at_grid, at_mid = np.stack(basis(settings, s)), np.stack(basis(settings, mid))  # (3, T + 1, P), (3, T, P)
+    weights = simpson_weights(settings)
+    first = np.arange(segments) * (settings.spans // settings.segments)
+    grid_rows = np.arange(segments)[:, None] * per + np.arange(per + 1)[None]      # (S, per + 1)
+    mid_rows = np.arange(segments)[:, None] * per + np.arange(per)[None]           # (S, per)
+    cols = first[:, None] + np.arange(window)[None]                                # (S, window)
+    b_grid = np.take_along_axis(at_grid[:, grid_rows], cols[None, :, None, :], axis=3)  # (3, S, per + 1, w)
+    b_mid = np.take_along_axis(at_mid[:, mid_rows], cols[None, :, None, :], axis=3)
+    # the window holds every control point that reaches the segment's samples
+    outside = at_grid[:, grid_rows].sum(axis=3) - b_grid.sum(axis=3)
+    if np.abs(outside).max() > 1e-12:
+        raise AssertionError("a control point outside the window reaches a segment")
+    owned = np.ones((segments, per + 1))
+    owned[:-1, -1] = 0.0  # a segment's end sample is the next node's (the last one's is the step's end)
+    data = {"basis_grid": np.moveaxis(b_grid, 0, 1), "basis_mid": np.moveaxis(b_mid, 0, 1),
+            "ds": np.diff(s)[mid_rows], "weights": weights[np.minimum(grid_rows, settings.steps)] * owned}
+    return first, window, data
+
+
+class _Split:
+    """Builds the split for one settings, biped and problem kind ("energy", or "limit": a last column t
+    with the power limit t M_W0)."""
+
+    def __init__(self, biped: hs.PlanarBiped, settings: GaitSettings, kind: str = "energy"):
+        if settings.dynamics not in ("chain", "mjx"):
+            raise ValueError(f"unknown dynamics {settings.dynamics!r}")
+        self.biped, self.settings, self.kind = biped, settings, kind
+        self.n = settings.size + (1 if kind == "limit" else 0)
+        self.segments, self.per = settings.segments, settings.steps // settings.segments
+        self.first, self.window, self.data = _layout(settings)
+        controls, nodes = _control_columns(settings), _node_columns(settings)
+        limit = [self.n - 1] if kind == "limit" else []
+        rows = []
+        for k in range(self.segments):
+            following = nodes[k + 1] if k + 1 < self.segments else np.full(2, self.n)
+            rows.append(np.concatenate([nodes[k], controls[self.first[k]:self.first[k] + self.window].ravel(),
+                                        following, limit]))
+        self.segment_columns = np.stack(rows).astype(np.int32)
+        start = np.concatenate([nodes[0], controls[:settings.degree + 1].ravel()])
+        last = self.segment_columns[-1, :-2 - len(limit)]  # the last segment's node and control points
+        self.boundary_columns = np.concatenate([start, last, limit]).astype(np.int32)
+        self.start_size = start.shape[0]
+
+    # -- where the problem's rows are in the split
+
+    def _sample(self, t: int) -> tuple[int, int]:
+        """(segment, position) of grid sample t."""
+        return (t // self.per, t % self.per) if t < self.settings.steps else (self.segments - 1, self.per)
+
+    def orders(self, shapes: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """order_r, order_h, order_g (see LocalProblem); ``shapes``: each sample group's (blocks, C)."""
+        steps, segments, per = self.settings.steps, self.segments, self.per
+        r_size = (per + 1) * 4
+        order_r = [self._sample(t)[0] * r_size + self._sample(t)[1] * 4 + j for t in range(steps + 1) for j in range(4)]
+        split_h = segments * 2
+        order_h = [k * 2 for k in range(segments - 1)] + [k * 2 + 1 for k in range(segments - 1)]
+        order_h += list(range(split_h, split_h + 2 + 1 + 5))
+        offsets, at = {}, 0  # each sample group's offset in a segment's g
+        for name in constraints.SAMPLE_GROUPS:
+            offsets[name] = at
+            at += shapes[name][0] * (per + 1) * shapes[name][1]
+        g_size, split_g = at, segments * at
+        boundary = {"touchdown_descending": (0, 1), "impact_impulse": (1, 3), "liftoff": (4, 1)}
+        order_g = []
+        for name, (kind, _) in constraints.CONSTRAINT_GROUPS.items():
+            if kind != "inequality":
+                continue
+            if name in boundary:
+                first, count = boundary[name]
+                order_g += list(range(split_g + first, split_g + first + count))
+                continue
+            blocks, width = shapes[name]
+            samples = range(1, steps) if name == "swing_foot_height" else range(steps + 1)
+            for block in range(blocks):
+                for t in samples:
+                    k, p = self._sample(t)
+                    base = k * g_size + offsets[name] + block * (per + 1) * width + p * width
+                    order_g += list(range(base, base + width))
+        return tuple(np.asarray(o, dtype=np.int32) for o in (order_r, order_h, order_g))
+
+    # -- the rows of one segment
+
+    def _model(self, model: GaitModel, local):
+        if self.kind == "limit":
+            return dataclasses.replace(model, power_limit=model.power_limit * local[-1])
+        return model
+
+    def _samples(self, local, data, model):
+        """The segment's samples: (q, qd, qdd, u, force, positions) at its per + 1 grid points and the
+        state integrated to its end (2,)."""
+        biped = hs.with_design(self.biped, model.design)
+        dynamics = stance_dynamics(biped, self.settings.dynamics)
+        step_time = model.step_length / model.speed
+        node, points = local[:2], local[2:2 + 4 * self.window].reshape(self.window, 4)
+        scale = time_scale(step_time)
+        at_grid = jnp.einsum("dpw,wj->dpj", data["basis_grid"], points) * scale   # (3, per + 1, 4)
+        at_mid = jnp.einsum("dpw,wj->dpj", data["basis_mid"], points) * scale     # (3, per, 4)
+        by_step = lambda a: jnp.swapaxes(a, 0, 1)  # noqa: E731  (3, P, 4) -> (P, 3, 4)
+        after = shoot(dynamics, node, by_step(at_grid[:, :-1]), by_step(at_mid), by_step(at_grid[:, 1:]),
+                      data["ds"] * step_time)                                     # (per, 2)
+        stance = jnp.concatenate([node[None], after])                              # (per + 1, 2)
+        outputs = jax.vmap(lambda *a: sample_outputs(dynamics, *a))(stance[:, 0], stance[:, 1], by_step(at_grid))
+        return dynamics, step_time, outputs, after[-1]
+
+    def segment(self, local, data, model):
+        model = self._model(model, local)
+        _, step_time, (q, qd, _, u, force, positions), end = self._samples(local, data, model)
+        speed = qd[:, ACTUATED_INDEX]
+        r = self._residuals(u, speed, model, data["weights"] * step_time)
+        groups = constraints.sample_groups(q, u, force, positions[:, 0], positions[:, 1:, 1], speed, model,
+                                           self.settings)
+        following = local[2 + 4 * self.window:4 + 4 * self.window]
+        defect = end - following
+        h = jnp.stack([defect[0] / constraints._SCALES["rad"], defect[1] / constraints._SCALES["rad/s"]])
+        g = jnp.concatenate([(groups[name] / _scale(name)).ravel() for name in constraints.SAMPLE_GROUPS])
+        return r, h, g
+
+    @staticmethod
+    def _residuals(u, speed, model, dt):
+        from biped_jax.drives import model as drive_model
+        return drive_model.joule_residuals(u, speed, model.drives, dt[:, None]).ravel()
+
+    # -- the boundary rows
+
+    def boundary(self, columns, model):
+        start, local = columns[:self.start_size], columns[self.start_size:]
+        model = self._model(model, local)
+        data = jax.tree.map(lambda a: jnp.asarray(a[-1]), self.data)
+        dynamics, step_time, (q, qd, _, u, force, positions), _ = self._samples(local, data, model)
+        # the first sample: node 0 and the first span's control points at s = 0
+        first_basis = jnp.asarray(np.stack(basis(self.settings, np.zeros(1)))[:, 0, :self.settings.degree + 1])
+        points = start[2:].reshape(self.settings.degree + 1, 4)
+        ref0 = (first_basis @ points) * time_scale(step_time)[:, 0]
+        q0, qd0 = (jnp.zeros(5, columns.dtype).at[0].set(value).at[ACTUATED_INDEX].set(ref)
+                   for value, ref in ((start[0], ref0[0]), (start[1], ref0[1])))
+        _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
+        ends = {"q0": q0, "qd0": qd0, "swing_foot_end": positions[-1, 0], "swing_foot_velocity": foot_velocity,
+                "touchdown": dynamics.touchdown(q[-1], qd[-1])}
+        groups = constraints.boundary_groups(ends, model, self.settings)
+        h = jnp.concatenate([groups[n] / _scale(n) for n in _BOUNDARY_EQUALITIES])
+        g = jnp.concatenate([groups[n] / _scale(n) for n in _BOUNDARY_INEQUALITIES])
+        return jnp.zeros(0, columns.dtype), h, g
+
+
+def _scale(name: str) -> float:
+    return constraints._SCALES[constraints.CONSTRAINT_GROUPS[name][1]]
+
+
+_BOUNDARY_EQUALITIES = ("touchdown_position", "periodicity_angle", "periodicity_rate")
+_BOUNDARY_INEQUALITIES = ("touchdown_descending", "impact_impulse", "liftoff")
+
+
+#: Each sample group's (blocks, components) (:func:`biped_jax.gait.constraints.sample_groups`).
+SAMPLE_SHAPES = {"swing_foot_height": (1, 1), "heights": (1, 3), "knee_range": (2, 2), "vertical_force": (1, 1),
+                 "friction_cone": (2, 1), "torque_bound": (2, 4), "power_limit": (2, 4), "voltage": (2, 4)}
+
+
+def local_problem(biped: hs.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
+    """The split of the gait problem (``kind`` "energy": x; "limit": (x, t) with the power limit t M_W0)
+    whose rows, in the problem's order, are those of :class:`biped_jax.gait.solver.GaitSolver`'s problem
+    (or its ``limit_problem``)."""
+    split = _Split(biped, settings, kind)
+    order_r, order_h, order_g = split.orders(SAMPLE_SHAPES)
+    return LocalProblem(segment=split.segment, boundary=split.boundary, segment_columns=split.segment_columns,
+                        boundary_columns=split.boundary_columns, segment_data=split.data,
+                        order_r=order_r, order_h=order_h, order_g=order_g,
+                        linear_objective=split.n - 1 if kind == "limit" else None)

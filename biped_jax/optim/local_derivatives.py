@@ -1,0 +1,152 @@
+"""Exact derivatives of a problem whose rows are local: each belongs to one of S segments and reads a few
+columns of x, and a few boundary rows read a few more. What a multiply-shot trajectory is: a shooting
+segment's samples depend on its node and on the control points that reach it.
+
+The Lagrangian is then a sum L = sum_k L_k(x[c_k]) + L_b(x[c_b]), so its Hessian is the sum of small
+dense blocks, one per segment, each the Hessian of L_k in its own l columns: forward-over-reverse
+automatic differentiation with l unit directions per segment, all segments at once (``vmap``), costs l
+directions over the rollout's work where a column colouring of the whole problem needs one direction
+per colour (about 2.5 times l for a B-spline trajectory: two columns may share a colour only when no
+row of the Hessian meets both). The blocks are added into the (n, n) Hessian; the Jacobians' rows are
+placed the same way.
+
+:class:`LocalProblem` describes the split; :func:`derivatives` returns what
+:func:`biped_jax.optim.exact_derivatives.derivatives` returns for the problem it splits, rows in that
+problem's order.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class LocalProblem:
+    """A problem's rows split into segments and a boundary.
+
+    Attributes:
+      segment: ``(x_local (l,), data_k, params) -> (r_k (a,), h_k (b,), g_k (c,))``, one segment's rows
+        (the same sizes for every segment; rows a segment does not own are computed and left out).
+      boundary: ``(x_boundary (p,), params) -> (r_b, h_b, g_b)``, the rows that are no segment's.
+      segment_columns: each segment's columns of x, (S, l) int; ``n`` (one past the last column) pads a
+        segment with fewer columns (a column that is always zero).
+      boundary_columns: the boundary's columns, (p,) int.
+      segment_data: per-segment constants, a pytree of numpy arrays with leading dimension S.
+      order_r, order_h, order_g: for each row of the problem (its r, h and g in its own order), where it
+        is in the split's rows: the S segments' rows flattened (segment-major), then the boundary's.
+      linear_objective: None: f = r . r; a column index i: f = x[i] (the rows r are then not used).
+    """
+
+    segment: Callable[[jax.Array, Any, Any], tuple]
+    boundary: Callable[[jax.Array, Any], tuple]
+    segment_columns: np.ndarray
+    boundary_columns: np.ndarray
+    segment_data: Any
+    order_r: np.ndarray
+    order_h: np.ndarray
+    order_g: np.ndarray
+    linear_objective: int | None = None
+
+    @property
+    def directions(self) -> int:
+        """Directions per derivative pass: each segment's columns (the boundary's run alongside)."""
+        return int(self.segment_columns.shape[1])
+
+    def rows(self, x, params):
+        """(r, h, g) in the problem's order from the split (for checking the split against the problem)."""
+        padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+        parts = jax.vmap(self.segment, in_axes=(0, 0, None))(padded[self.segment_columns], self.segment_data, params)
+        ends = self.boundary(padded[self.boundary_columns], params)
+        return tuple(jnp.concatenate([p.ravel(), e])[order]
+                     for p, e, order in zip(parts, ends, (self.order_r, self.order_h, self.order_g)))
+
+
+def _lifted(order: np.ndarray, values, size: int):
+    """``values`` (the problem's rows) placed at their split positions in a vector of ``size`` (zeros
+    at the rows no one owns)."""
+    return jnp.zeros(size, values.dtype).at[order].set(values)
+
+
+def _second_order(function, point, directions):
+    """(value, aux, grad, tangents of (aux outputs, grad)) of ``function(point) -> (L, aux)`` along each
+    of ``directions`` (d, len(point)): forward over reverse."""
+    def gradient(p):
+        grad, aux = jax.grad(function, has_aux=True)(p)
+        return aux, grad
+
+    def along(direction):
+        return jax.jvp(gradient, (point,), (direction,))
+    primal, tangent = jax.vmap(along)(directions)
+    return jax.tree.map(lambda a: a[0], primal), tangent
+
+
+def derivatives(local: LocalProblem, x, params, weight, y, z):
+    """Values and exact derivatives at x (one problem), as
+    :func:`biped_jax.optim.exact_derivatives.derivatives`: (f, h, g, grad L (n,), jac h (m_h, n),
+    jac g (m_g, n), hessian of L (n, n)) for L = w f + y . h + z . g with f = r . r."""
+    n = x.shape[0]
+    segments, width = local.segment_columns.shape
+    padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+    sizes = jax.eval_shape(local.segment, jnp.zeros(width, x.dtype), jax.tree.map(lambda a: a[0], local.segment_data),
+                           params)
+    ends = jax.eval_shape(local.boundary, jnp.zeros(local.boundary_columns.shape[0], x.dtype), params)
+    b, c = (s.shape[0] for s in sizes[1:])
+    total_h, total_g = segments * b + ends[1].shape[0], segments * c + ends[2].shape[0]
+    y_split = _lifted(local.order_h, y, total_h)
+    z_split = _lifted(local.order_g, z, total_g)
+
+    residual_weight = weight if local.linear_objective is None else 0.0
+
+    def lagrangian(function, y_part, z_part, data):
+        def value(point):
+            r, h, g = function(point, data) if data is not None else function(point)
+            return residual_weight * (r @ r) + y_part @ h + z_part @ g, (r, h, g)
+        return value
+
+    def one_segment(columns, data, y_k, z_k):
+        point = padded[columns]
+        function = lambda p, d: local.segment(p, d, params)  # noqa: E731
+        return _second_order(lagrangian(function, y_k, z_k, data), point, jnp.eye(width, dtype=x.dtype))
+
+    (rows_k, grad_k), ((_, jh_k, jg_k), hess_k) = jax.vmap(one_segment)(
+        jnp.asarray(local.segment_columns), local.segment_data, y_split[:segments * b].reshape(segments, b),
+        z_split[:segments * c].reshape(segments, c))
+    boundary = local.boundary_columns
+    (rows_e, grad_e), ((_, jh_e, jg_e), hess_e) = _second_order(
+        lagrangian(lambda p: local.boundary(p, params), y_split[segments * b:], z_split[segments * c:], None),
+        padded[boundary], jnp.eye(boundary.shape[0], dtype=x.dtype))
+
+    columns = jnp.asarray(local.segment_columns)
+    grad = jnp.zeros(n + 1, x.dtype).at[columns].add(grad_k).at[boundary].add(grad_e)[:n]
+    hessian = (jnp.zeros((n + 1, n + 1), x.dtype).at[columns[:, :, None], columns[:, None, :]].add(hess_k)
+               .at[boundary[:, None], boundary[None, :]].add(hess_e))[:n, :n]
+    hessian = 0.5 * (hessian + hessian.T)
+
+    def jacobian(per_segment, at_boundary, order, rows_per_segment):
+        # per_segment (S, l, rows): d row / d local column; at_boundary (p, rows_b). Each split row goes
+        # straight to its row of the problem (rows no one owns to an index past the end: dropped)
+        split_rows = segments * rows_per_segment + at_boundary.shape[1]
+        target = np.full(split_rows, order.shape[0], dtype=np.int32)
+        target[order] = np.arange(order.shape[0])
+        into = jnp.zeros((order.shape[0], n + 1), x.dtype)
+        into = into.at[target[:segments * rows_per_segment].reshape(segments, rows_per_segment)[:, :, None],
+                       columns[:, None, :]].add(jnp.swapaxes(per_segment, 1, 2), mode="drop")
+        into = into.at[target[segments * rows_per_segment:][:, None], boundary[None, :]].add(at_boundary.T,
+                                                                                             mode="drop")
+        return into[:, :n]
+
+    h = jnp.concatenate([rows_k[1].ravel(), rows_e[1]])[local.order_h]
+    g = jnp.concatenate([rows_k[2].ravel(), rows_e[2]])[local.order_g]
+    if local.linear_objective is None:
+        r = jnp.concatenate([rows_k[0].ravel(), rows_e[0]])[local.order_r]
+        f = r @ r
+    else:
+        f = x[local.linear_objective]
+        grad = grad.at[local.linear_objective].add(weight)
+    return (f, h, g, grad, jacobian(jh_k, jh_e, local.order_h, b), jacobian(jg_k, jg_e, local.order_g, c),
+            hessian)

@@ -1,0 +1,57 @@
+"""The gait problem split by shooting segment (biped_jax.gait.segmented) has the problem's rows, and its
+segment-local exact derivatives (biped_jax.optim.local_derivatives) equal central differences of the
+problem. ``benchmarks/local_derivatives.py`` checks them against the dense autodiff derivatives to
+rounding (the energy and the power-limit problem, several segmentations) and times them."""
+
+import jax
+import numpy as np
+import pytest
+
+from biped_jax.gait import problem as gait
+from biped_jax.gait import segmented
+from biped_jax.optim import local_derivatives as ld
+
+#: Multiply shot in 4 segments of one knot span.
+SPACES = {"4 segments": gait.GaitSettings(spans=4, segments=4, substeps=2)}
+
+
+def _space(settings):
+    jax.config.update("jax_enable_x64", True)
+    from biped_jax.gait.solver import GaitSolver
+    solver = GaitSolver(settings, check_refinement=False)
+    model = gait.gait_model("18kg", 0.6, 15.0)
+    x = np.asarray(solver._initial_guess(jax.tree.map(lambda a: a[None], model))[0])
+    return solver, model, x + 0.02 * np.random.default_rng(4).normal(size=x.shape)  # off the start's symmetry
+
+
+def _split(solver, model, x, kind):
+    problem = solver.problem if kind == "energy" else solver.limit_problem
+    point = x if kind == "energy" else np.concatenate([x, [0.8]])
+    return problem, point, segmented.local_problem(solver.biped, solver.settings, kind)
+
+
+def test_the_splits_derivatives_equal_central_differences_of_the_problem():
+    solver, model, x = _space(SPACES["4 segments"])
+    problem, point, local = _split(solver, model, x, "energy")
+    assert local.directions < point.shape[0]
+    f, h, g = problem.evaluate(point, model)
+    _, h_split, g_split = jax.jit(local.rows)(point, model)
+    np.testing.assert_allclose(h_split, h, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(g_split, g, rtol=1e-12, atol=1e-12)
+    rng = np.random.default_rng(5)
+    y, z = rng.normal(size=h.shape), rng.uniform(size=g.shape)
+    split = jax.jit(ld.derivatives, static_argnums=0)
+    f_, h_, g_, grad, jac_h, jac_g, hessian = split(local, point, model, 0.7, y, z)
+    assert float(f_) == pytest.approx(float(f), rel=1e-12)
+    step, n = 1e-6, point.shape[0]  # central differences in float64: error about 1e-9 relative
+    offsets = step * np.eye(n)
+    values = jax.jit(jax.vmap(problem.evaluate, in_axes=(0, None)))(np.concatenate([point + offsets, point - offsets]),
+                                                                   model)
+    slopes = [(v[:n] - v[n:]) / (2 * step) for v in values]      # (n, ...) per output
+    np.testing.assert_allclose(jac_h, slopes[1].T, atol=1e-7 * np.max(np.abs(jac_h)))
+    np.testing.assert_allclose(jac_g, slopes[2].T, atol=1e-7 * np.max(np.abs(jac_g)))
+    np.testing.assert_allclose(grad, 0.7 * slopes[0] + slopes[1] @ y + slopes[2] @ z, atol=1e-7 * np.max(np.abs(grad)))
+    for i in range(n):  # the Hessian's columns: differences of the split's own gradient
+        plus = split(local, point + offsets[i], model, 0.7, y, z)[3]
+        minus = split(local, point - offsets[i], model, 0.7, y, z)[3]
+        np.testing.assert_allclose(hessian[:, i], (plus - minus) / (2 * step), atol=1e-6 * np.max(np.abs(hessian)))
