@@ -53,7 +53,8 @@ def exactness(settings) -> list[dict]:
         reference = jax.jit(ed.derivatives, static_argnums=0)(problem, point, model, 0.7, y, z, dense)
         split = jax.jit(ld.derivatives, static_argnums=0)(local, point, model, 0.7, y, z)
         rows.append({"check": "split against dense", "problem": kind, "spans": settings.spans,
-                     "segments": settings.segments, "largest_relative_difference": largest_difference(split, reference)})
+                     "segments": settings.segments,
+                     "largest_relative_difference": largest_difference(split, reference)})
         print(rows[-1], flush=True)
     return rows
 

@@ -41,8 +41,6 @@ class JointWorkspace:
         checks.finite_array("JointWorkspace.speed", self.speed, (t.shape[0], None), ": one row per sample time")
         checks.finite_array("JointWorkspace.torque", self.torque, np.shape(self.speed), ": the shape of speed")
         checks.number_in("JointWorkspace.step_time", self.step_time, 0.0, math.inf, "s")
-        if t.shape[0] < 2 or np.any(np.diff(t) <= 0):
-            raise ValueError(f"JointWorkspace.t must be at least two increasing times, got {t.tolist()[:5]}...")
 
     def outside_impacts(self, window: float = IMPACT_WINDOW) -> np.ndarray:
         """Mask of the samples farther than window x t_f from either end, shape (T,)."""
