@@ -114,13 +114,17 @@ def test_an_infeasible_problem_says_so_with_its_violation():
 
 
 def test_batches_of_other_problems_and_sizes_share_one_program():
+    from biped_jax.report.compile_profile import profile_compiles
     compiled = ip.compile_problem(nlp.ConstrainedProblem(hs071))
     batches = ([40.0, 38.0, 42.0, 41.0, 39.0], [39.0, 41.0, 40.5, 38.5, 41.5, 40.0], [40.0, 37.0, 43.0, 39.5, 42.0])
-    for targets in batches:
-        result = ip.solve(compiled.problem, np.tile([1.0, 5.0, 5.0, 1.0], (len(targets), 1)), jnp.asarray(targets),
-                          compiled=compiled)
-        assert result.status == ["converged"] * len(targets)
-        assert result.x.shape == (len(targets), 4)
+    with profile_compiles() as profile:
+        for targets in batches:
+            result = ip.solve(compiled.problem, np.tile([1.0, 5.0, 5.0, 1.0], (len(targets), 1)),
+                              jnp.asarray(targets), compiled=compiled)
+            assert result.status == ["converged"] * len(targets)
+            assert result.x.shape == (len(targets), 4)
+    # the memory check's compilation is the one the solve runs: the iterations compile once in all
+    assert [e["name"] for e in profile.events].count("jit(_block)") == 1, profile.events
     # batches are padded (to 6 here): other targets, 5 and 6 problems run in one program
     assert compiled.block._cache_size() == 1
     assert compiled.initial._cache_size() == 1

@@ -108,6 +108,11 @@ _SCALES = {"m": LENGTH_SCALE, "rad": 1.0, "rad/s": RATE_SCALE, "m/s": LENGTH_SCA
            "N m": TORQUE_SCALE, "W": POWER_SCALE, "N s": IMPULSE_SCALE, "V": VOLTAGE_SCALE}
 
 
+def group_scale(name: str) -> float:
+    """The own units per scaled unit of constraint group ``name`` (what :func:`scaled_constraints` divides by)."""
+    return _SCALES[CONSTRAINT_GROUPS[name][1]]
+
+
 def scaled_constraints(groups: dict) -> tuple[jax.Array, jax.Array]:
     """(equalities, inequalities), each concatenated and scaled to order one."""
     equalities, inequalities = [], []

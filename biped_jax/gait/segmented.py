@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax.drives import model as drive_model
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.dynamics.stance import stance_dynamics
 from biped_jax.gait import constraints
@@ -161,13 +162,14 @@ class _Split:
                                            self.settings)
         following = local[2 + 4 * self.window:4 + 4 * self.window]
         defect = end - following
-        h = jnp.stack([defect[0] / constraints._SCALES["rad"], defect[1] / constraints._SCALES["rad/s"]])
-        g = jnp.concatenate([(groups[name] / _scale(name)).ravel() for name in constraints.SAMPLE_GROUPS])
+        h = jnp.stack([defect[0] / constraints.group_scale("continuity_angle"),
+                       defect[1] / constraints.group_scale("continuity_rate")])
+        g = jnp.concatenate([(groups[name] / constraints.group_scale(name)).ravel()
+                             for name in constraints.SAMPLE_GROUPS])
         return r, h, g
 
     @staticmethod
     def _residuals(u, speed, model, dt):
-        from biped_jax.drives import model as drive_model
         return drive_model.joule_residuals(u, speed, model.drives, dt[:, None]).ravel()
 
     # -- the boundary rows
@@ -187,13 +189,9 @@ class _Split:
         ends = {"q0": q0, "qd0": qd0, "swing_foot_end": positions[-1, 0], "swing_foot_velocity": foot_velocity,
                 "touchdown": dynamics.touchdown(q[-1], qd[-1])}
         groups = constraints.boundary_groups(ends, model, self.settings)
-        h = jnp.concatenate([groups[n] / _scale(n) for n in _BOUNDARY_EQUALITIES])
-        g = jnp.concatenate([groups[n] / _scale(n) for n in _BOUNDARY_INEQUALITIES])
+        h = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_EQUALITIES])
+        g = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_INEQUALITIES])
         return jnp.zeros(0, columns.dtype), h, g
-
-
-def _scale(name: str) -> float:
-    return constraints._SCALES[constraints.CONSTRAINT_GROUPS[name][1]]
 
 
 _BOUNDARY_EQUALITIES = ("touchdown_position", "periodicity_angle", "periodicity_rate")

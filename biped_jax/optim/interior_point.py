@@ -593,8 +593,10 @@ def program_memory(compiled: CompiledInteriorPoint, structure, x0, params, multi
     solve that follows does not compile it again."""
     padded = padded_batch(x0.shape[0])
     sharding = batch_sharding(padded)  # as the solve will place the batch
-    shaped = lambda a: jax.ShapeDtypeStruct((padded,) + a.shape[1:], a.dtype, sharding=sharding)  # noqa: E731
-    shapes = jax.tree.map(lambda a: shaped(jnp.asarray(a)), (x0, params, multipliers))
+    # the avals exactly as the solve's (weak types included), so that JAX keeps this compilation for it
+    shaped = lambda a: jax.ShapeDtypeStruct((padded,) + a.shape[1:], a.dtype, sharding=sharding,  # noqa: E731
+                                            weak_type=getattr(a, "weak_type", False))
+    shapes = jax.tree.map(lambda a: shaped(jax.typeof(jnp.asarray(a))), (x0, params, multipliers))
     state = jax.tree.map(shaped, jax.eval_shape(compiled.initial, shapes[0], shapes[1], shapes[2][0],
                                                 shapes[2][1], 0.1))
     executable = compiled.block.lower(structure, shapes[1], state, jnp.asarray(1, jnp.int32)).compile()
