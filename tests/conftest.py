@@ -98,6 +98,7 @@ def paper_solutions(short_solver):
 #: variants check) 43, DONALD 43, the command line 40, SLSQP 39, the humanoid 29, the rest under 26; the interior
 #: point (its gait check) about 45, measured 2026-12-03 in a full run.
 HEAVY_FIRST = ("mjx_quickstart", "test_gait", "mjx_gradient", "mjx_forward", "test_design", "test_interior_point",
+               "test_local_derivatives",
                "donald", "test_cli",
                "test_sqp", "test_humanoid", "test_hybrid_step", "test_codesign", "test_readme",
                "test_augmented_lagrangian", "test_planar_chain", "test_models")

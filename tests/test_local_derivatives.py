@@ -34,20 +34,21 @@ def test_the_splits_derivatives_equal_central_differences_of_the_problem():
     solver, model, x = _space(SPACES["4 segments"])
     problem, point, local = _split(solver, model, x, "energy")
     assert local.directions < point.shape[0]
-    f, h, g = problem.evaluate(point, model)
-    _, h_split, g_split = jax.jit(local.rows)(point, model)
-    np.testing.assert_allclose(h_split, h, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(g_split, g, rtol=1e-12, atol=1e-12)
+    step, n = 1e-6, point.shape[0]  # central differences in float64: error about 1e-9 relative
+    offsets = step * np.eye(n)
+    # one program evaluates the problem at the point and at every offset (two programs in all here)
+    values = jax.jit(jax.vmap(problem.evaluate, in_axes=(0, None)))(
+        np.concatenate([point[None], point + offsets, point - offsets]), model)
+    f, h, g = (v[0] for v in values)
+    slopes = [(v[1:n + 1] - v[n + 1:]) / (2 * step) for v in values]      # (n, ...) per output
     rng = np.random.default_rng(5)
     y, z = rng.normal(size=h.shape), rng.uniform(size=g.shape)
     split = jax.jit(ld.derivatives, static_argnums=0)
     f_, h_, g_, grad, jac_h, jac_g, hessian = split(local, point, model, 0.7, y, z)
+    # the split's rows are the problem's
     assert float(f_) == pytest.approx(float(f), rel=1e-12)
-    step, n = 1e-6, point.shape[0]  # central differences in float64: error about 1e-9 relative
-    offsets = step * np.eye(n)
-    values = jax.jit(jax.vmap(problem.evaluate, in_axes=(0, None)))(np.concatenate([point + offsets, point - offsets]),
-                                                                   model)
-    slopes = [(v[:n] - v[n:]) / (2 * step) for v in values]      # (n, ...) per output
+    np.testing.assert_allclose(h_, h, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(g_, g, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(jac_h, slopes[1].T, atol=1e-7 * np.max(np.abs(jac_h)))
     np.testing.assert_allclose(jac_g, slopes[2].T, atol=1e-7 * np.max(np.abs(jac_g)))
     np.testing.assert_allclose(grad, 0.7 * slopes[0] + slopes[1] @ y + slopes[2] @ z, atol=1e-7 * np.max(np.abs(grad)))
