@@ -61,6 +61,7 @@ from biped_jax.gait.settings import (
     check_problem,
     gait_model,
     refined,
+    with_limit_fraction,
 )
 from biped_jax.gait.splines import (
     basis,
@@ -114,6 +115,7 @@ __all__ = [
     "project",
     "reference",
     "refined",
+    "with_limit_fraction",
     "scaled_constraints",
     "segment_starts",
     "simpson_weights",

@@ -12,8 +12,6 @@ the split against the problem to rounding.
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,7 +21,7 @@ from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.dynamics.stance import stance_dynamics
 from biped_jax.gait import constraints
 from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
-from biped_jax.gait.settings import GaitModel, GaitSettings
+from biped_jax.gait.settings import GaitModel, GaitSettings, with_limit_fraction
 from biped_jax.gait.splines import basis, grid, simpson_weights
 from biped_jax.optim.local_derivatives import LocalProblem
 from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP
@@ -133,7 +131,7 @@ class _Split:
 
     def _model(self, model: GaitModel, local):
         if self.kind == "limit":
-            return dataclasses.replace(model, power_limit=model.power_limit * local[-1])
+            return with_limit_fraction(model, local[-1])
         return model
 
     def _samples(self, local, data, model):

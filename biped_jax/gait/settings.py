@@ -167,6 +167,12 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
                      drives=drive_model.ideal_drives())
 
 
+def with_limit_fraction(model: GaitModel, fraction) -> GaitModel:
+    """``model`` with its power limit M_W scaled by ``fraction`` (traceable): the smallest power limit's
+    problem in (x, t) poses every constraint at M_W = t M_W0."""
+    return dataclasses.replace(model, power_limit=model.power_limit * fraction)
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class GaitTrajectory:

@@ -142,7 +142,7 @@ class GaitSolver:
 
         def limit_problem(x_limit, model):  # (x, t): minimise t with every constraint at M_W = t M_W0
             x, t = x_limit[:-1], x_limit[-1]
-            _, h, g = self.problem.evaluate(x, dataclasses.replace(model, power_limit=model.power_limit * t))
+            _, h, g = self.problem.evaluate(x, gait.with_limit_fraction(model, t))
             return t, h, g
 
         self.limit_problem = nlp.ConstrainedProblem(limit_problem)
@@ -321,8 +321,7 @@ class GaitSolver:
             scale[-1, -1] = POWER_LIMIT_STEP
             scales.append(scale)
         # the limit as a variable on the energy problem's compiled functions: M_W = t M_W0 (t a float)
-        limit = limit_minimisation.LimitMinimisation(energy, lambda model, t: dataclasses.replace(
-            model, power_limit=model.power_limit * t))
+        limit = limit_minimisation.LimitMinimisation(energy, gait.with_limit_fraction)
         return sqp.solve(self.problem, start, batch, options, compiled=limit,
                          progress=self._sqp_progress(progress, names), scales=np.stack(scales))
 

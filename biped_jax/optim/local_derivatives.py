@@ -57,14 +57,6 @@ class LocalProblem:
         """Directions per derivative pass: each segment's columns (the boundary's run alongside)."""
         return int(self.segment_columns.shape[1])
 
-    def rows(self, x, params):
-        """(r, h, g) in the problem's order from the split (for checking the split against the problem)."""
-        padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
-        parts = jax.vmap(self.segment, in_axes=(0, 0, None))(padded[self.segment_columns], self.segment_data, params)
-        ends = self.boundary(padded[self.boundary_columns], params)
-        return tuple(jnp.concatenate([p.ravel(), e])[order]
-                     for p, e, order in zip(parts, ends, (self.order_r, self.order_h, self.order_g)))
-
 
 def _lifted(order: np.ndarray, values, size: int):
     """``values`` (the problem's rows) placed at their split positions in a vector of ``size`` (zeros
@@ -73,8 +65,8 @@ def _lifted(order: np.ndarray, values, size: int):
 
 
 def _second_order(function, point, directions):
-    """(value, aux, grad, tangents of (aux outputs, grad)) of ``function(point) -> (L, aux)`` along each
-    of ``directions`` (d, len(point)): forward over reverse."""
+    """((aux, grad L), their tangents along each of ``directions`` (d, len(point))) of
+    ``function(point) -> (L, aux)``: forward over reverse."""
     def gradient(p):
         grad, aux = jax.grad(function, has_aux=True)(p)
         return aux, grad
