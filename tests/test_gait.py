@@ -83,20 +83,34 @@ def heuristic(solver):
     return model, x[0], jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(x, batch))
 
 
-def test_report_rollouts_share_one_program_for_every_batch_size(solver, heuristic):
-    """GaitSolver.simulate runs the problems one by one: one and five problems give the rows a direct
-    vmapped rollout gives, without compiling a program per batch size."""
+def test_report_checks_a_batch_of_designs_and_sizes_in_one_program(solver, heuristic):
+    """GaitSolver.check rolls a whole batch out in one vmapped program per grid: batches of one and five
+    different problems (speeds, link masses) give the rows a direct vmapped rollout gives, each row
+    its own problem's, and share the program the fixture compiled (no program per batch size or
+    member); the violations and J are those of the rows' own trajectories."""
     model, x, _ = heuristic
     xs = np.stack([x * (1 + 0.01 * k) for k in range(5)])
-    models = gait_solver.stack_tree([dataclasses.replace(model, speed=jnp.asarray(0.5 + 0.01 * k))
-                                     for k in range(5)])
+    models = gait_solver.stack_tree([dataclasses.replace(
+        model, speed=jnp.asarray(0.5 + 0.01 * k),
+        design=dataclasses.replace(model.design, link_mass=model.design.link_mass * (1 + 0.02 * k)))
+        for k in range(5)])
     direct = jax.jit(jax.vmap(lambda x_, m: gait.simulate(x_, m, solver.biped, SETTINGS)))(jnp.asarray(xs), models)
-    before = solver._simulate._cache_size()
-    five, one = solver.simulate(xs, models), solver.simulate(xs[:1], jax.tree.map(lambda a: a[:1], models))
-    assert before == 1 and solver._simulate._cache_size() == before  # the fixture's rollouts
-    assert five.u.shape == (5,) + direct.u.shape[1:]
-    np.testing.assert_allclose(five.u, direct.u, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(one.q, np.asarray(direct.q)[:1], rtol=1e-12, atol=1e-12)
+    program = solver._checks[SETTINGS]
+    before = program._cache_size()
+    five, one = solver.check(xs, models), solver.check(xs[:1], jax.tree.map(lambda a: a[:1], models))
+    assert before == 1 and program._cache_size() == before  # the fixture's batch of four compiled it
+    assert five.trajectory.u.shape == (5,) + direct.u.shape[1:] and five.energy.shape == (5,)
+    np.testing.assert_allclose(five.trajectory.u, direct.u, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(one.trajectory.q, np.asarray(direct.q)[:1], rtol=1e-12, atol=1e-12)
+    assert len(set(np.round(five.energy, 9))) == 5  # five problems, five different gaits
+    for k in (0, 3):
+        row = jax.tree.map(lambda a: a[k], direct)
+        model_k = jax.tree.map(lambda a: a[k], models)
+        groups = gait.violations(gait.constraint_groups(row, model_k, SETTINGS))
+        for name, value in groups.items():
+            assert five.violations[name][k] == pytest.approx(float(value), rel=1e-9, abs=1e-12), name
+        assert five.energy[k] == pytest.approx(float(gait.cost(row)), rel=1e-12)
+    assert five.finite.all()
 
 
 @pytest.mark.slow
@@ -165,10 +179,12 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     assert check["passed"] == (not check["failed"])
     model = gait.gait_model("12kg", 0.555, 20.0)
     batch = gait_solver.stack_tree([model] * 4)
-    fine = jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate_refined(
-        jnp.asarray(np.tile(m2_solution.x, (4, 1))), batch))
-    assert check["cost"] == pytest.approx(float(gait.cost(fine)), rel=1e-12)
-    moved = verdict.refinement_record(1.01 * check["cost"], fine, model, solver.refined_settings)
+    fine = solver.check(jnp.asarray(np.tile(m2_solution.x, (4, 1))), batch, refined=True)
+    trajectory = jax.tree.map(lambda a: a[0], fine.trajectory)
+    assert check["cost"] == pytest.approx(float(gait.cost(trajectory)), rel=1e-12)
+    first = jax.tree.map(lambda a: a[:1], fine)
+    steps = solver.refined_settings.steps
+    moved, = verdict.refinement_records([1.01 * check["cost"]], first, [20.0], steps)
     assert not moved["passed"] and moved["failed"][0] == "cost"
     # a gait that fails the check is not converged (the study's solvers enforce it)
     feasible = {k: 0.0 for k in gait.CONSTRAINT_GROUPS}
@@ -178,9 +194,15 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     assert verdict.classify(nlp.CONVERGED, False, feasible, {"passed": True}) == nlp.DIVERGED
     assert verdict.classify(nlp.CONVERGED, True, feasible | {"power_limit": 1e-3},
                                 {"passed": True}) == nlp.ITERATION_LIMIT
-    tight = gait.gait_model("12kg", 0.555, 0.5 * float(np.max(np.abs(fine.joint_power))))
-    broken = verdict.refinement_record(check["cost"], fine, tight, solver.refined_settings)
+    tight = 0.5 * float(np.max(np.abs(trajectory.joint_power)))
+    broken, = verdict.refinement_records([check["cost"]], solver.check(
+        jnp.asarray(m2_solution.x[None]), gait_solver.stack_tree([gait.gait_model("12kg", 0.555, tight)]),
+        refined=True), [tight], steps)
     assert "power_limit" in broken["failed"] and broken["power_margin_fraction"] > 0.01
+    # each row of a batch is judged on its own numbers: the tight row fails, the others do not move
+    mixed = verdict.refinement_records([check["cost"], 1.01 * check["cost"]], jax.tree.map(
+        lambda a: a[:2], fine), [20.0, 20.0], steps)
+    assert mixed[0]["passed"] == check["passed"] and mixed[1]["failed"][0] == "cost"
 
 
 @pytest.mark.slow

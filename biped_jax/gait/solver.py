@@ -1,6 +1,7 @@
-"""Solving gait problems: many models in one batch (SLSQP one after another, or the batched augmented
-Lagrangian), each solution re-simulated and judged (:mod:`biped_jax.gait.verdict`: violations in own
-units, the refinement check, the status); the smallest power limit at which a gait walks.
+"""Solving gait problems: many models in one batch (the batched interior point, SLSQP one after
+another, or the batched augmented Lagrangian), each solution re-simulated and judged
+(:mod:`biped_jax.gait.verdict`: violations in own units, the refinement check, the status) by one
+vmapped program per grid for the whole batch; the smallest power limit at which a gait walks.
 """
 
 from __future__ import annotations
@@ -42,19 +43,15 @@ GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-2, max_ou
                                        penalty_initial=10.0, penalty_max=1e6)
 
 
-def one_by_one(function: Callable, x, models):
-    """``function(x_b, model_b)`` (one problem) for every b of the leading dimension B, stacked: numpy
-    outputs of leading dimension B.
+#: The smallest batch the report's rollouts run as: a smaller batch is padded to it, so that every batch
+#: of up to this many problems (the test suite's, the study's refined stage) shares one program per grid;
+#: a larger one runs as :func:`~biped_jax.optim.interior_point.padded_batch` problems, as its solve did.
+REPORT_BATCH = 8
 
-    The report rollouts (:meth:`GaitSolver.simulate`, the refinement check) run this way: one compiled
-    program per grid whatever the batch size, and a single rollout compiles faster than a vmapped one
-    (measured 2026-12-02 in the study's 48 spans, the CPU shared: 24 s against 31 s for a vmapped batch
-    of 1 and 36 s for 4); the rollouts themselves take milliseconds."""
-    x = np.asarray(x)
-    models = jax.tree.map(np.asarray, models)  # numpy slices: no compiled slicing per leaf
-    parts = [jax.tree.map(np.asarray, function(x[b], jax.tree.map(lambda a: a[b], models)))
-             for b in range(x.shape[0])]
-    return jax.tree.map(lambda *a: np.stack(a), *parts)
+
+def report_batch(batch: int) -> int:
+    """The number of problems (``batch`` and padding) one report program rolls out at once."""
+    return max(REPORT_BATCH, ip.padded_batch(batch))
 
 
 def stack_tree(trees: list):
@@ -77,8 +74,8 @@ class GaitSolution:
       history: per outer iteration: cost, scaled violation, penalty, gradients.
       multipliers_eq, multipliers_in: the solver's final multiplier estimates of the scaled
         constraints (see :func:`biped_jax.optim.augmented_lagrangian.optimal_value_gradient`).
-      refinement: the refinement check (:func:`refinement_record`): J and violations on a grid
-        ``gait.REFINEMENT`` times finer, the same decision vector.
+      refinement: the refinement check (:func:`~biped_jax.gait.verdict.refinement_records`): J and
+        violations on a grid ``gait.REFINEMENT`` times finer, the same decision vector.
       starts: from :func:`solve_multistart`, every start's family, status and cost (the spread over
         starts: does the optimum look unique?).
     """
@@ -148,14 +145,13 @@ class GaitSolver:
         self.limit_problem = nlp.ConstrainedProblem(limit_problem)
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
         self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
-        self._value = jax.jit(self.problem.evaluate)
 
         self.compiled = al.compile_problem(self.problem)
         self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
-        self._simulate = jax.jit(functools.partial(gait.simulate, biped=biped, settings=settings))
         self.refined_settings = gait.refined(settings)
-        self._simulate_refined = jax.jit(functools.partial(
-            gait.simulate, biped=biped, settings=self.refined_settings))
+        # the report's rollouts and verdict numbers, a batch per call: one program per grid and report_batch
+        self._checks = {grid: jax.jit(jax.vmap(functools.partial(verdict.rollout_check, biped=biped, settings=grid)))
+                        for grid in (settings, self.refined_settings)}
         self._initial_guess = jax.jit(jax.vmap(functools.partial(
             gait.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
 
@@ -224,13 +220,30 @@ class GaitSolver:
                              progress=self._sqp_progress(progress, names))
         return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
+    def check(self, x, models: gait.GaitModel, refined: bool = False) -> verdict.GridCheck:
+        """The batch ``x`` (B, n) re-simulated on the solve grid (``refined``: the refinement check's,
+        ``gait.REFINEMENT`` times finer) with every group's violation, J and finiteness, in one vmapped
+        program (batches padded to :func:`report_batch`, sharded over the devices as the solve's);
+        ``models`` with leading dimension B. Numpy leaves with leading dimension B."""
+        x = jnp.asarray(x, dtype=jnp.result_type(float))
+        batch = x.shape[0]
+        size = report_batch(batch)
+        # strong float64 leaves padded with copies of the first row: one program whatever the batch
+        x, models = jax.tree.map(lambda a: ip.pad_rows(jnp.asarray(a, dtype=jnp.asarray(a).dtype), size),
+                                 (x, models))
+        sharding = ip.batch_sharding(size)
+        if sharding is not None:
+            x, models = jax.device_put((x, models), sharding)
+        checked = self._checks[self.refined_settings if refined else self.settings](x, models)
+        return jax.tree.map(lambda a: np.asarray(a)[:batch], checked)
+
     def simulate(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
         """Batched rollout: x (B, n), models with leading dimension B; numpy leaves (B, ...)."""
-        return one_by_one(self._simulate, x, models)
+        return self.check(x, models).trajectory
 
     def simulate_refined(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
         """:meth:`simulate` on the refinement check's grid (4x finer)."""
-        return one_by_one(self._simulate_refined, x, models)
+        return self.check(x, models, refined=True).trajectory
 
     def check_batch(self, names, models, x0=None, multipliers=None) -> np.ndarray | None:
         """Checks a batch before anything compiles: ``names`` a non-empty list of labels, ``models`` as
@@ -263,7 +276,7 @@ class GaitSolver:
         x0 = self.check_batch(names, models, x0, multipliers)
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        return self._report(names, models, self._solve_batch(x0, batch, progress, names, multipliers))
+        return self._report(names, batch, self._solve_batch(x0, batch, progress, names, multipliers))
 
     def minimise_power_limit(self, names: list[str], models: list[gait.GaitModel], x0,
                              progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
@@ -295,15 +308,14 @@ class GaitSolver:
             raise TypeError("minimise_power_limit runs the interior point or SLSQP: use solver.using("
                             f"InteriorPointOptions(...)), got options of type {type(options).__name__}")
         x = result.x[:, :-1]
-        solve_grid = result.x[:, -1] * np.array([float(m.power_limit) for m in models])
-        limits, fine = solve_grid, None
+        solve_grid = result.x[:, -1] * np.asarray(batch.power_limit)
+        limits = solve_grid
         if self.check_refinement:
-            fine = self.simulate_refined(x, batch)
-            limits = np.maximum(solve_grid, np.max(np.abs(np.asarray(fine.joint_power)), axis=(1, 2)))
-        at_limit = [dataclasses.replace(m, power_limit=jnp.asarray(float(p))) for m, p in zip(models, limits)]
-        cost = np.array([float(self._value(jnp.asarray(x[b]), jax.tree.map(lambda a: a[b], batch))[0])
-                         for b in range(len(models))])  # J does not depend on the limit
-        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x, cost=cost), refined=fine)
+            fine_power = np.abs(self.simulate_refined(x, batch).joint_power)
+            limits = np.maximum(solve_grid, np.max(fine_power, axis=(1, 2)))
+        at_limit = dataclasses.replace(batch, power_limit=jnp.asarray(limits, dtype=jnp.result_type(float)))
+        # J (not minimised here) is the re-simulated gait's; it does not depend on the limit
+        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x), cost_of_rollout=True)
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
@@ -325,36 +337,37 @@ class GaitSolver:
         return sqp.solve(self.problem, start, batch, options, compiled=limit,
                          progress=self._sqp_progress(progress, names), scales=np.stack(scales))
 
-    def _report(self, names: list[str], models: list[gait.GaitModel], result: nlp.SolveResult,
-                refined: gait.GaitTrajectory | None = None) -> list[GaitSolution]:
-        """GaitSolutions of a solver result: re-simulated, checked on the refined grid (``refined``:
-        that rollout of ``result.x`` when the caller has it), classified."""
-        batch = stack_tree(models)
-        trajectories = self.simulate(result.x, batch)
-        if refined is None and self.check_refinement:
-            refined = self.simulate_refined(result.x, batch)
+    def _report(self, names: list[str], batch: gait.GaitModel, result: nlp.SolveResult,
+                cost_of_rollout: bool = False) -> list[GaitSolution]:
+        """GaitSolutions of a solver result on the models ``batch`` (leading dimension B): the batch
+        re-simulated and checked on the refined grid by one program per grid, classified, then cut
+        into one solution per problem. ``cost_of_rollout``: J is the re-simulated gait's, not the
+        solver's objective."""
+        coarse = self.check(result.x, batch)
+        fine = self.check(result.x, batch, refined=True) if self.check_refinement else None
+        numeric = jax.tree.map(np.asarray, batch)
+        cost = coarse.energy if cost_of_rollout else np.asarray(result.cost)
+        if fine is None:
+            records = [{"skipped": True, "passed": None} for _ in names]
+        else:
+            records = verdict.refinement_records(cost, fine, numeric.power_limit, self.refined_settings.steps)
+        mass = np.asarray(numeric.design.total_mass)
+        history = [{k: np.asarray(v, dtype=float) for k, v in row.items() if k != "x"} for row in result.history]
         solutions = []
-        numeric = jax.tree.map(np.asarray, batch)  # strong float64 leaves: one verdict.grid_check program per grid
-        for b, (name, model) in enumerate(zip(names, models)):
-            trajectory = jax.tree.map(lambda a: np.asarray(a[b]), trajectories)
-            model_b = jax.tree.map(lambda a: a[b], numeric)
-            violations = {k: float(v) for k, v in verdict.grid_check(trajectory, model_b, self.settings)[0].items()}
-            refinement = {"skipped": True, "passed": None} if refined is None else verdict.refinement_record(
-                float(result.cost[b]), jax.tree.map(lambda a: np.asarray(a[b]), refined), model_b,
-                self.refined_settings)
-            finite = bool(np.all(np.isfinite(result.x[b])) and np.all(np.isfinite(trajectory.u)))
-            status = verdict.classify(result.status[b], finite, violations, refinement, self.require_refinement)
+        for b, name in enumerate(names):
+            violations = {k: float(v[b]) for k, v in coarse.violations.items()}
+            status = verdict.classify(result.status[b], bool(coarse.finite[b]), violations, records[b],
+                                      self.require_refinement)
             solutions.append(GaitSolution(
-                name=name, mass_kg=float(model.design.total_mass), speed_mps=float(model.speed),
-                power_limit_W=float(model.power_limit), step_length_m=float(model.step_length),
-                step_time_s=float(model.step_length / model.speed), status=status,
-                cost=float(result.cost[b]), violations=violations,
+                name=name, mass_kg=float(mass[b]), speed_mps=float(numeric.speed[b]),
+                power_limit_W=float(numeric.power_limit[b]), step_length_m=float(numeric.step_length[b]),
+                step_time_s=float(numeric.step_length[b] / numeric.speed[b]), status=status,
+                cost=float(cost[b]), violations=violations,
                 max_violation=max(violations.values()), stationarity=float(result.stationarity[b]),
                 outer_iterations=int(result.outer_iterations[b]), gradients=int(result.gradients[b]),
-                wall_time_s=result.wall_time_s, x=np.asarray(result.x[b]), trajectory=trajectory,
-                history=[{k: float(v[b]) for k, v in row.items() if k != "x"} for row in result.history],
+                wall_time_s=result.wall_time_s, x=np.asarray(result.x[b]),
+                trajectory=jax.tree.map(lambda a: a[b], coarse.trajectory),
+                history=[{k: float(v[b]) for k, v in row.items()} for row in history],
                 multipliers_eq=result.multipliers_eq[b], multipliers_in=result.multipliers_in[b],
-                refinement=refinement))
+                refinement=records[b]))
         return solutions
-
-

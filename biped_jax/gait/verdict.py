@@ -6,9 +6,11 @@ re-simulation, the refinement check (the same decision vector re-simulated on a 
 
 from __future__ import annotations
 
-import functools
+from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
 from biped_jax.gait import problem as gait
 from biped_jax.optim import nlp
@@ -29,39 +31,63 @@ _REFINED_TOLERANCE = {"m": 1e-4, "rad": 1e-3, "rad/s": 1e-3, "m/s": 1e-3, "N": 1
 REFINED_POWER_FRACTION = 0.01
 
 
-def refined_tolerance(group: str, power_limit: float) -> float:
+def refined_tolerance(group: str, power_limit):
     """The refinement check's tolerance for a constraint group, in the group's own unit: 1 % of M_W for
-    the power limit, 1 N for forces, 1e-3 rad/s for rates, 0.1 mm for lengths, 1e-3 rad for angles."""
+    the power limit (an array of limits, W, gives an array), 1 N for forces, 1e-3 rad/s for rates,
+    0.1 mm for lengths, 1e-3 rad for angles."""
     if group == "power_limit":
         return REFINED_POWER_FRACTION * power_limit
     return _REFINED_TOLERANCE[gait.CONSTRAINT_GROUPS[group][1]]
 
 
-@functools.partial(jax.jit, static_argnames="settings")
-def grid_check(trajectory: gait.GaitTrajectory, model: gait.GaitModel, settings: gait.GaitSettings):
-    """Each constraint group's largest violation (its own unit) and the objective (the Joule energy of
-    ``model.drives``; the integral of u^T u for ideal drives) of one rollout on the grid ``settings``.
-    Compiled: one program per grid instead of an eager XLA program per operation and shape."""
+class GridCheck(NamedTuple):
+    """What the verdict reads of one rollout (or a batch: every leaf with a leading dimension B).
+
+    Attributes:
+      trajectory: the simulated step (:class:`~biped_jax.gait.problem.GaitTrajectory`).
+      violations: each constraint group's largest violation in its own unit.
+      energy: the objective on this grid, the Joule energy of ``model.drives`` (J = integral of u^T u,
+        N^2 m^2 s, for ideal drives).
+      finite: whether the decision vector and the torques are finite (bool).
+    """
+
+    trajectory: gait.GaitTrajectory
+    violations: dict
+    energy: jax.Array
+    finite: jax.Array
+
+
+def rollout_check(x, model: gait.GaitModel, biped, settings: gait.GaitSettings) -> GridCheck:
+    """One decision vector ``x`` (n,) re-simulated on the grid ``settings`` with what the verdict reads
+    of it. Pure and traceable: the solver vmaps it over a batch, one program per grid."""
+    trajectory = gait.simulate(x, model, biped, settings)
     groups = gait.constraint_groups(trajectory, model, settings)
-    return gait.violations(groups), gait.joule_energy(trajectory, model.drives)
+    finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(trajectory.u))
+    return GridCheck(trajectory, gait.violations(groups), gait.joule_energy(trajectory, model.drives), finite)
 
 
-def refinement_record(coarse_cost: float, fine: gait.GaitTrajectory, model: gait.GaitModel,
-                      settings: gait.GaitSettings) -> dict:
-    """The refinement check of one solution: J and each group's violation on the finer grid
-    ``settings`` (the same decision vector), and whether it passes. J is the problem's own objective,
-    the Joule energy of ``model.drives`` (the integral of u^T u for the paper's ideal drives)."""
-    groups, cost = grid_check(fine, model, settings)
-    violations = {k: float(v) for k, v in groups.items()}
-    cost = float(cost)
-    change = abs(cost - coarse_cost) / max(abs(coarse_cost), 1e-12)
-    limit = float(model.power_limit)
-    failed = sorted(k for k, v in violations.items() if not v <= refined_tolerance(k, limit))
-    if not change <= REFINED_COST_CHANGE:
-        failed.insert(0, "cost")
-    return {"steps": settings.steps, "cost": cost, "cost_change": change, "violations": violations,
-            "power_margin_fraction": violations["power_limit"] / limit, "failed": failed,
-            "passed": not failed}
+def refinement_records(coarse_cost, fine: GridCheck, power_limit, steps: int) -> list[dict]:
+    """The refinement check of a batch of B solutions: ``coarse_cost`` (B,) J on the solve grid,
+    ``fine`` their :class:`GridCheck` on the grid ``steps`` samples long (numpy, leading dimension B),
+    ``power_limit`` (B,) W. Per solution J and each group's violation on the finer grid, and whether
+    it passes (J moves by at most :data:`REFINED_COST_CHANGE`, every group within
+    :func:`refined_tolerance`); the failed checks named, "cost" first."""
+    coarse = np.asarray(coarse_cost, dtype=float)
+    cost = np.asarray(fine.energy, dtype=float)
+    limit = np.asarray(power_limit, dtype=float)
+    violations = {k: np.asarray(v, dtype=float) for k, v in fine.violations.items()}
+    change = np.abs(cost - coarse) / np.maximum(np.abs(coarse), 1e-12)
+    over = {k: ~(v <= refined_tolerance(k, limit)) for k, v in violations.items()}
+    records = []
+    for b in range(cost.shape[0]):
+        failed = sorted(k for k in violations if over[k][b])
+        if not change[b] <= REFINED_COST_CHANGE:
+            failed.insert(0, "cost")
+        records.append({"steps": steps, "cost": float(cost[b]), "cost_change": float(change[b]),
+                        "violations": {k: float(v[b]) for k, v in violations.items()},
+                        "power_margin_fraction": float(violations["power_limit"][b] / limit[b]),
+                        "failed": failed, "passed": not failed})
+    return records
 
 
 def classify(solver_status: str, finite: bool, violations: dict, refinement: dict,

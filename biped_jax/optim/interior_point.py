@@ -497,7 +497,7 @@ def padded_batch(batch: int) -> int:
     return 3 * size // 4 if size >= 4 and 3 * size // 4 >= batch else size
 
 
-def _pad(leaf, size: int):
+def pad_rows(leaf, size: int):
     """``leaf`` (B, ...) extended to (size, ...) by copies of its first row."""
     extra = size - leaf.shape[0]
     return leaf if extra == 0 else jnp.concatenate([leaf, jnp.repeat(leaf[:1], extra, axis=0)])
@@ -646,7 +646,7 @@ def _solve_batch(compiled, options, structure, x0, params, multipliers, progress
     batch = x0.shape[0]
     y0, z0 = multipliers
     padded = padded_batch(batch)
-    x0, y0, z0, params = jax.tree.map(lambda a: _pad(jnp.asarray(a), padded), (x0, y0, z0, params))
+    x0, y0, z0, params = jax.tree.map(lambda a: pad_rows(jnp.asarray(a), padded), (x0, y0, z0, params))
     sharding = batch_sharding(padded)
     if sharding is not None:
         x0, y0, z0, params = jax.device_put((x0, y0, z0, params), sharding)
