@@ -36,7 +36,8 @@ def space_problem(settings, kind: str):
     x = x + 0.01 * np.random.default_rng(0).normal(size=x.shape)
     problem = solver.problem if kind == "energy" else solver.limit_problem
     point = x if kind == "energy" else np.concatenate([x, [0.9]])
-    return solver, model, point, problem, segmented.local_problem(solver.biped, settings, kind)
+    params = model if kind == "energy" else gait.LimitParams(model, np.asarray(0.01))
+    return solver, params, point, problem, segmented.local_problem(solver.biped, settings, kind)
 
 
 def exactness(settings) -> list[dict]:

@@ -297,6 +297,10 @@ def _solver_rows(solver, model):
          "x0 is None"),
         ("power limit, starts for two", lambda: solver.minimise_power_limit(["M2"], [model], np.zeros((2, n))),
          ValueError, f"x0 must have shape (1, {n})"),
+        ("power limit, a negative weight", lambda: solver.minimise_power_limit(
+            ["M2"], [model], np.zeros((1, n)), energy_weights=(0.1, -1.0)), ValueError, "energy_weights must be"),
+        ("power limit, no weights", lambda: solver.minimise_power_limit(
+            ["M2"], [model], np.zeros((1, n)), energy_weights=()), ValueError, "energy_weights must be"),
         ("multistart: names and models", lambda: solve_multistart(solver, ["M2"], [model, model]), ValueError,
          "1 names, 2 models"),
         ("multistart: no families", lambda: solve_multistart(solver, ["M2"], [model], families=()), ValueError,

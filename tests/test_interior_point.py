@@ -245,3 +245,40 @@ def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
     np.testing.assert_allclose(chunked.multipliers_in, whole.multipliers_in, atol=1e-9)
     with pytest.raises(MemoryError, match="one problem's program needs about"):
         ip.solve(problem, starts, targets, compiled=compiled, memory_budget=1.0)
+
+
+def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_gaits):
+    """From M1-M4's optima at their own limits, the continuation (J's weight beside the limit down to 0)
+    ends at KKT points of min t s.t. every constraint at M_W = t M_W0, checked with central differences
+    of the limit problem: stationarity with the solver's multipliers, z >= 0, complementarity; the limit
+    is the gait's own peak power on the solve grid (tight), far below the model's own."""
+    import dataclasses
+    from biped_jax.gait import problem as gait
+    from biped_jax.gait.solver import stack_tree
+    from biped_jax.studies import paper as study
+    solver, models, solutions = interior_gaits
+    power = solver.using(dataclasses.replace(study.IP_OPTIONS, max_iterations=150))
+    minima = power.minimise_power_limit([s.name for s in solutions], models, np.stack([s.x for s in solutions]))
+    assert [m.status for m in minima] == ["converged"] * 4, [(m.status, m.max_violation) for m in minima]
+    batch = stack_tree(models)
+    evaluate = jax.jit(jax.vmap(power.limit_problem.evaluate, in_axes=(0, None)))
+    for b, (own, minimum) in enumerate(zip(solutions, minima)):
+        model = jax.tree.map(lambda a: a[b], batch)
+        own_limit = float(model.power_limit)
+        t = minimum.refinement["solve_grid_limit_W"] / own_limit
+        peak = float(np.max(np.abs(minimum.trajectory.joint_power)))
+        assert peak == pytest.approx(t * own_limit, rel=1e-6)  # the limit is tight
+        assert peak < 0.5 * float(np.max(np.abs(own.trajectory.joint_power)))
+        point = np.concatenate([minimum.x, [t]])
+        step, n = 1e-6, point.shape[0]
+        offsets = step * np.eye(n)
+        values = evaluate(np.concatenate([point[None], point + offsets, point - offsets]),
+                          gait.LimitParams(model, np.asarray(0.0)))
+        f, h, g = (np.asarray(v[0]) for v in values)
+        grad, jac_h, jac_g = ((np.asarray(v[1:n + 1]) - np.asarray(v[n + 1:])) / (2 * step) for v in values)
+        lam_eq, lam_in = minimum.multipliers_eq, minimum.multipliers_in
+        assert f == pytest.approx(t) and np.max(np.abs(h)) < 1e-6 and np.max(g) < 1e-6
+        assert np.all(lam_in >= 0)
+        stationarity = grad + jac_h @ lam_eq + jac_g @ lam_in
+        assert np.max(np.abs(stationarity)) < KKT_TOLERANCE * 1e2, np.max(np.abs(stationarity))
+        assert np.max(np.abs(lam_in * g)) < 1e-6  # complementarity

@@ -21,7 +21,7 @@ from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.dynamics.stance import stance_dynamics
 from biped_jax.gait import constraints
 from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
-from biped_jax.gait.settings import GaitModel, GaitSettings, with_limit_fraction
+from biped_jax.gait.settings import GaitSettings, with_limit_fraction
 from biped_jax.gait.splines import basis, grid, simpson_weights
 from biped_jax.optim.local_derivatives import LocalProblem
 from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP
@@ -129,10 +129,12 @@ class _Split:
 
     # -- the rows of one segment
 
-    def _model(self, model: GaitModel, local):
+    def _model(self, params, local):
+        """The gait model the rows are posed on: ``params`` itself, or for the limit problem its
+        :class:`~biped_jax.gait.settings.LimitParams`' model at the limit t M_W0."""
         if self.kind == "limit":
-            return with_limit_fraction(model, local[-1])
-        return model
+            return with_limit_fraction(params.model, local[-1])
+        return params
 
     def _samples(self, local, data, model):
         """The segment's samples: (q, qd, qdd, u, force, positions) at its per + 1 grid points and the
@@ -151,8 +153,8 @@ class _Split:
         outputs = jax.vmap(lambda *a: sample_outputs(dynamics, *a))(stance[:, 0], stance[:, 1], by_step(at_grid))
         return dynamics, step_time, outputs, after[-1]
 
-    def segment(self, local, data, model):
-        model = self._model(model, local)
+    def segment(self, local, data, params):
+        model = self._model(params, local)
         _, step_time, (q, qd, _, u, force, positions), end = self._samples(local, data, model)
         speed = qd[:, ACTUATED_INDEX]
         r = self._residuals(u, speed, model, data["weights"] * step_time)
@@ -172,9 +174,9 @@ class _Split:
 
     # -- the boundary rows
 
-    def boundary(self, columns, model):
+    def boundary(self, columns, params):
         start, local = columns[:self.start_size], columns[self.start_size:]
-        model = self._model(model, local)
+        model = self._model(params, local)
         data = jax.tree.map(lambda a: jnp.asarray(a[-1]), self.data)
         dynamics, step_time, (q, qd, _, u, force, positions), _ = self._samples(local, data, model)
         # the first sample: node 0 and the first span's control points at s = 0
@@ -202,12 +204,14 @@ SAMPLE_SHAPES = {"swing_foot_height": (1, 1), "heights": (1, 3), "knee_range": (
 
 
 def local_problem(biped: hs.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
-    """The split of the gait problem (``kind`` "energy": x; "limit": (x, t) with the power limit t M_W0)
-    whose rows, in the problem's order, are those of :class:`biped_jax.gait.solver.GaitSolver`'s problem
-    (or its ``limit_problem``)."""
+    """The split of the gait problem (``kind`` "energy": x, params a GaitModel; "limit": (x, t) with the
+    power limit t M_W0 and the objective t + energy_weight J, params
+    :class:`~biped_jax.gait.settings.LimitParams`) whose rows, in the problem's order, are those of
+    :class:`biped_jax.gait.solver.GaitSolver`'s problem (or its ``limit_problem``)."""
     split = _Split(biped, settings, kind)
     order_r, order_h, order_g = split.orders(SAMPLE_SHAPES)
     return LocalProblem(segment=split.segment, boundary=split.boundary, segment_columns=split.segment_columns,
                         boundary_columns=split.boundary_columns, segment_data=split.data,
                         order_r=order_r, order_h=order_h, order_g=order_g,
-                        linear_objective=split.n - 1 if kind == "limit" else None)
+                        linear_objective=split.n - 1 if kind == "limit" else None,
+                        energy_weight=(lambda params: params.energy_weight) if kind == "limit" else None)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -171,6 +172,21 @@ def with_limit_fraction(model: GaitModel, fraction) -> GaitModel:
     """``model`` with its power limit M_W scaled by ``fraction`` (traceable): the smallest power limit's
     problem in (x, t) poses every constraint at M_W = t M_W0."""
     return dataclasses.replace(model, power_limit=model.power_limit * fraction)
+
+
+class LimitParams(NamedTuple):
+    """The smallest power limit's problem data, one problem (a batch: leading dimension B).
+
+    Attributes:
+      model: the gait problem at its own limit M_W0; the problem in (x, t) poses every constraint at
+        M_W = t M_W0.
+      energy_weight: the weight of J beside t in the objective t + energy_weight J (1 / (N^2 m^2 s)):
+        positive, it picks the cheapest gait among those at (nearly) the smallest limit and gives the
+        problem the curvature a linear objective lacks; 0 is the plain epigraph form.
+    """
+
+    model: GaitModel
+    energy_weight: jax.Array
 
 
 @jax.tree_util.register_dataclass

@@ -43,6 +43,19 @@ GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-2, max_ou
                                        penalty_initial=10.0, penalty_max=1e6)
 
 
+#: The smallest power limit by the interior point (:meth:`GaitSolver.minimise_power_limit`): stages of
+#: min t + (w / J0) J over (x, t), J0 the start's J, for each weight w in turn, every stage from the last
+#: one's point and multipliers; the last stage (w = 0) is the epigraph form min t itself. Its linear
+#: objective gives the Newton steps no curvature until the multipliers of the active power rows are
+#: right, and its optimal gaits are not unique (many gaits reach the same peak power): solved cold it
+#: ran off to violations of order one and stopped infeasible (measured 2026-12-04, 48 and 12 spans,
+#: M1-M4). With J beside t each stage is well posed, and its optimum and multipliers start the next
+#: close to its own; at w = 0.001 the limit is within 0.05 % of the epigraph form's (12 spans, M1-M4).
+LIMIT_ENERGY_WEIGHTS = (0.1, 0.01, 0.001, 0.0)
+#: The first barrier parameter of every stage after the first (warm: the barrier's centring term
+#: mu m / sum z moves t by about mu times the number m of power rows, 1,544 in the study's grid).
+LIMIT_WARM_MU = 1e-4
+
 #: The smallest batch the report's rollouts run as: a smaller batch is padded to it, so that every batch
 #: of up to this many problems (the test suite's, the study's refined stage) shares one program per grid;
 #: a larger one runs as :func:`~biped_jax.optim.interior_point.padded_batch` problems, as its solve did.
@@ -137,10 +150,11 @@ class GaitSolver:
 
         self.problem = nlp.ConstrainedProblem.from_residuals(residuals)
 
-        def limit_problem(x_limit, model):  # (x, t): minimise t with every constraint at M_W = t M_W0
+        def limit_problem(x_limit, params: gait.LimitParams):
+            # (x, t): minimise t + w J with every constraint at M_W = t M_W0
             x, t = x_limit[:-1], x_limit[-1]
-            _, h, g = self.problem.evaluate(x, gait.with_limit_fraction(model, t))
-            return t, h, g
+            energy, h, g = self.problem.evaluate(x, gait.with_limit_fraction(params.model, t))
+            return t + params.energy_weight * energy, h, g
 
         self.limit_problem = nlp.ConstrainedProblem(limit_problem)
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
@@ -190,7 +204,7 @@ class GaitSolver:
                          "cost": np.array([f]), "violation": np.array([v])})
         return report
 
-    def _interior_point(self, kind: str, x0, batch, progress, multipliers=None) -> nlp.SolveResult:
+    def _interior_point(self, kind: str, x0, batch, progress, multipliers=None, options=None) -> nlp.SolveResult:
         """The batched interior point on the energy problem (``kind`` "energy") or the smallest power
         limit's ("limit"), its colouring probed at the first problem's start and its programs compiled
         on first use, both kept for later batches of the same shape."""
@@ -205,10 +219,11 @@ class GaitSolver:
                     problem = dataclasses.replace(problem, local=local)
             self._structures[kind] = (problem, structure)
         problem, structure = self._structures[kind]
-        key = (kind, ip.loop_options(self.options))
+        options = options or self.options
+        key = (kind, ip.loop_options(options))
         if key not in self._interior:
-            self._interior[key] = ip.compile_problem(problem, self.options)
-        return ip.solve(problem, x0, batch, self.options, structure=structure,
+            self._interior[key] = ip.compile_problem(problem, options)
+        return ip.solve(problem, x0, batch, options, structure=structure,
                         compiled=self._interior[key], multipliers=multipliers, progress=progress)
 
     def _solve_batch(self, x0, batch, progress, names, multipliers=None):
@@ -279,11 +294,15 @@ class GaitSolver:
         return self._report(names, batch, self._solve_batch(x0, batch, progress, names, multipliers))
 
     def minimise_power_limit(self, names: list[str], models: list[gait.GaitModel], x0,
-                             progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
+                             progress: Callable[[int, dict], None] | None = None,
+                             energy_weights: tuple = LIMIT_ENERGY_WEIGHTS) -> list[GaitSolution]:
         """The smallest power limit M_W at which each model walks: the interior point (all models in one
-        batch) or SLSQP on (x, M_W / M_W0) minimising the limit (the epigraph form of the smallest
+        batch) or SLSQP on (x, t = M_W / M_W0) minimising the limit (the epigraph form of the smallest
         largest joint power |qdot u| over feasible gaits), from ``x0`` (B, n), gaits feasible at the
-        models' own limits M_W0.
+        models' own limits M_W0. The interior point runs :data:`LIMIT_ENERGY_WEIGHTS` (or
+        ``energy_weights``: non-negative, the last normally 0) as a continuation: min t + (w / J0) J
+        for each weight w in turn; with a last weight of 0 a converged result is a KKT point of the
+        epigraph form min t, its multipliers those of that problem.
 
         Returns per model the gait found, as a :class:`GaitSolution` at the limit it keeps on both
         grids: ``power_limit_W`` is the larger of the limit reached on the solve grid (in
@@ -298,10 +317,15 @@ class GaitSolver:
             raise ValueError("x0 is None: minimise_power_limit starts from gaits feasible at the models' "
                              "own limits, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
         x0 = self.check_batch(names, models, x0)
+        weights = energy_weights if isinstance(energy_weights, (list, tuple)) else ()
+        if not weights or not all(isinstance(w, (int, float)) and not isinstance(w, bool) and np.isfinite(w)
+                                  and w >= 0 for w in weights):
+            raise ValueError("energy_weights must be a non-empty list or tuple of numbers >= 0 (the weights of J "
+                             f"beside the limit, stage by stage), got {energy_weights!r:.80}")
         batch = stack_tree(models)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
         if isinstance(options, ip.InteriorPointOptions):
-            result = self._interior_point("limit", jnp.asarray(start), batch, progress)
+            result = self._limit_continuation(start, batch, progress, tuple(float(w) for w in weights))
         elif isinstance(options, sqp.SQPOptions):
             result = self._slsqp_power_limit(names, models, batch, x0, start, progress)
         else:
@@ -319,6 +343,29 @@ class GaitSolver:
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
+
+    def _limit_continuation(self, start, batch, progress, energy_weights) -> nlp.SolveResult:
+        """The interior point on min t + (w_k / J0) J over (x, t) for each w_k of ``energy_weights`` in
+        turn (J0: each start's J), every stage from the last one's point and multipliers; the result is
+        the last stage's, with the iterations, derivative passes and time of all of them."""
+        j0 = self.check(start[:, :-1], batch).energy
+        point, multipliers, stages = jnp.asarray(start), None, []
+        # multipliers mu / s where none are known: z = 1 on some 1,500 power rows would weigh the
+        # Hessian with a thousand times the curvature the optimum's few active rows carry
+        first = dataclasses.replace(self.options, mu_based_multipliers=True)
+        for k, weight in enumerate(energy_weights):
+            params = gait.LimitParams(batch, jnp.asarray(weight / j0, dtype=jnp.result_type(float)))
+            options = first if k == 0 else dataclasses.replace(first, mu_initial=LIMIT_WARM_MU)
+            if progress:
+                stage = lambda i, row, w=weight: progress(i, {**row, "energy_weight": w})  # noqa: E731
+            result = self._interior_point("limit", point, params, progress and stage, multipliers, options)
+            stages.append(result)
+            point, multipliers = jnp.asarray(result.x), (result.multipliers_eq, result.multipliers_in)
+        last = stages[-1]
+        return dataclasses.replace(
+            last, outer_iterations=sum(r.outer_iterations for r in stages),
+            gradients=sum(r.gradients for r in stages), wall_time_s=sum(r.wall_time_s for r in stages),
+            history=[row for r in stages for row in r.history])
 
     def _slsqp_power_limit(self, names, models, batch, x0, start, progress) -> nlp.SolveResult:
         """SLSQP on (x, M_W / M_W0), each problem preconditioned by the Gauss-Newton matrix of its J at

@@ -76,6 +76,9 @@ class InteriorPointOptions:
       max_failures: consecutive failed line searches before a problem stops (``stalled`` or
         ``infeasible``).
       infeasible_above: a problem that stops with a larger scaled violation is ``infeasible``.
+      mu_based_multipliers: inequality multipliers without a warm start begin at mu / s (IPOPT's
+        ``bound_mult_init_method=mu-based``) instead of 1: for problems with many more inequality rows
+        than can be active, such as an epigraph form over every sample of a trajectory.
     """
 
     tolerance: float = 1e-8
@@ -92,6 +95,7 @@ class InteriorPointOptions:
     max_backtracks: int = 40
     max_failures: int = 5
     infeasible_above: float = 1e-3
+    mu_based_multipliers: bool = False
 
     def __post_init__(self):
         for name in ("tolerance", "feasibility", "acceptable_tolerance", "mu_initial", "slack_push",
@@ -185,7 +189,7 @@ def _first_iteration(options, st: State, f, h, g, grad_f, jac_h, jac_g, hessian_
     scale_f = _row_scales(grad_f[None], options.scaling_threshold)[0] * options.objective_scale
     scale_h, scale_g = _row_scales(jac_h, options.scaling_threshold), _row_scales(jac_g, options.scaling_threshold)
     s = jnp.maximum(-scale_g * g, options.slack_push)
-    z = jnp.where(st.z > 0, st.z * scale_f / scale_g, 1.0)
+    z = jnp.where(st.z > 0, st.z * scale_f / scale_g, st.mu / s if options.mu_based_multipliers else 1.0)
     y = st.y * scale_f / scale_h
     grad = scale_f * grad_f + (scale_h[:, None] * jac_h).T @ y + (scale_g[:, None] * jac_g).T @ z
     theta = _theta(scale_h * h, scale_g * g, s)

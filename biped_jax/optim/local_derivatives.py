@@ -39,7 +39,8 @@ class LocalProblem:
       segment_data: per-segment constants, a pytree of numpy arrays with leading dimension S.
       order_r, order_h, order_g: for each row of the problem (its r, h and g in its own order), where it
         is in the split's rows: the S segments' rows flattened (segment-major), then the boundary's.
-      linear_objective: None: f = r . r; a column index i: f = x[i] (the rows r are then not used).
+      linear_objective: None: f = r . r; a column index i: f = x[i] + energy_weight(params) r . r.
+      energy_weight: ``params -> weight`` of r . r beside a linear objective (None: 0, the rows r unused).
     """
 
     segment: Callable[[jax.Array, Any, Any], tuple]
@@ -51,6 +52,7 @@ class LocalProblem:
     order_h: np.ndarray
     order_g: np.ndarray
     linear_objective: int | None = None
+    energy_weight: Callable[[Any], Any] | None = None
 
     @property
     def directions(self) -> int:
@@ -92,7 +94,8 @@ def derivatives(local: LocalProblem, x, params, weight, y, z):
     y_split = _lifted(local.order_h, y, total_h)
     z_split = _lifted(local.order_g, z, total_g)
 
-    residual_weight = weight if local.linear_objective is None else 0.0
+    beside = 0.0 if local.energy_weight is None else local.energy_weight(params)  # r . r's weight beside x[i]
+    residual_weight = weight if local.linear_objective is None else weight * beside
 
     def lagrangian(function, y_part, z_part, data):
         def value(point):
@@ -134,11 +137,11 @@ def derivatives(local: LocalProblem, x, params, weight, y, z):
 
     h = jnp.concatenate([rows_k[1].ravel(), rows_e[1]])[local.order_h]
     g = jnp.concatenate([rows_k[2].ravel(), rows_e[2]])[local.order_g]
+    r = jnp.concatenate([rows_k[0].ravel(), rows_e[0]])[local.order_r]
     if local.linear_objective is None:
-        r = jnp.concatenate([rows_k[0].ravel(), rows_e[0]])[local.order_r]
         f = r @ r
     else:
-        f = x[local.linear_objective]
+        f = x[local.linear_objective] + beside * (r @ r)
         grad = grad.at[local.linear_objective].add(weight)
     return (f, h, g, grad, jacobian(jh_k, jh_e, local.order_h, b), jacobian(jg_k, jg_e, local.order_g, c),
             hessian)
