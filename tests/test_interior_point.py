@@ -248,8 +248,9 @@ def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
 
 
 def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_gaits):
-    """From M1-M4's optima at their own limits, the continuation (J's weight beside the limit down to 0)
-    ends at KKT points of min t s.t. every constraint at M_W = t M_W0, checked with central differences
+    """From M2's and M4's optima at their own limits (the study's cold epigraph form stopped infeasible on
+    both), the continuation (J's weight beside the limit down to 0) ends at KKT points of min t s.t.
+    every constraint at M_W = t M_W0, checked with central differences
     of the limit problem: stationarity with the solver's multipliers, z >= 0, complementarity; the limit
     is the gait's own peak power on the solve grid (tight), far below the model's own."""
     import dataclasses
@@ -257,9 +258,11 @@ def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_g
     from biped_jax.gait.solver import stack_tree
     from biped_jax.studies import paper as study
     solver, models, solutions = interior_gaits
+    picked = [1, 3]  # M2, M4
+    solutions, models = [solutions[b] for b in picked], [models[b] for b in picked]
     power = solver.using(dataclasses.replace(study.IP_OPTIONS, max_iterations=150))
     minima = power.minimise_power_limit([s.name for s in solutions], models, np.stack([s.x for s in solutions]))
-    assert [m.status for m in minima] == ["converged"] * 4, [(m.status, m.max_violation) for m in minima]
+    assert [m.status for m in minima] == ["converged"] * 2, [(m.status, m.max_violation) for m in minima]
     batch = stack_tree(models)
     evaluate = jax.jit(jax.vmap(power.limit_problem.evaluate, in_axes=(0, None)))
     for b, (own, minimum) in enumerate(zip(solutions, minima)):
