@@ -237,6 +237,7 @@ def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
     needed = ip.program_memory(compiled, ed.dense_structure(4, 10), jnp.asarray(starts), targets,
                                (jnp.zeros((5, 1)), jnp.zeros((5, 9))))
     assert needed > 0
+    assert list(compiled.memory.values()) == [needed]  # asked once per batch shape, not once per solve
     said = []
     chunked = ip.solve(problem, starts, targets, compiled=compiled, memory_budget=0.5 * needed, say=said.append)
     assert len(said) == 1 and "solving it in chunks of" in said[0], said

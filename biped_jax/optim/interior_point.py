@@ -465,6 +465,8 @@ class CompiledInteriorPoint:
     options: InteriorPointOptions
     initial: Callable
     block: Callable
+    #: :func:`program_memory` per batch shape: lowering the iteration program to ask XLA costs seconds
+    memory: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
 
 
 def loop_options(options: InteriorPointOptions) -> InteriorPointOptions:
@@ -601,14 +603,19 @@ def program_memory(compiled: CompiledInteriorPoint, structure, x0, params, multi
     shaped = lambda a: jax.ShapeDtypeStruct((padded,) + a.shape[1:], a.dtype, sharding=sharding,  # noqa: E731
                                             weak_type=getattr(a, "weak_type", False))
     shapes = jax.tree.map(lambda a: shaped(jax.typeof(jnp.asarray(a))), (x0, params, multipliers))
+    key = (str(jax.tree.structure((shapes, structure))), tuple(jax.tree.leaves(shapes)),
+           tuple((np.shape(a), np.asarray(a).dtype.str) for a in jax.tree.leaves(structure)))
+    if key in compiled.memory:
+        return compiled.memory[key]
     state = jax.tree.map(shaped, jax.eval_shape(compiled.initial, shapes[0], shapes[1], shapes[2][0],
                                                 shapes[2][1], 0.1))
     executable = compiled.block.lower(structure, shapes[1], state, jnp.asarray(1, jnp.int32)).compile()
     stats = executable.memory_analysis()
-    if stats is None:  # a backend without the analysis: assume it fits
-        return 0.0
-    return float(stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
-                 - stats.alias_size_in_bytes)
+    needed = 0.0 if stats is None else float(  # a backend without the analysis: assume it fits
+        stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
+        - stats.alias_size_in_bytes)
+    compiled.memory[key] = needed
+    return needed
 
 
 def _chunk_that_fits(compiled, structure, x0, params, multipliers, budget: float, say) -> int:
