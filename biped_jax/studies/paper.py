@@ -294,10 +294,12 @@ def _done(say: Callable[..., None], label: str, result, solved: Callable = len):
 def _power_report(say: Callable[..., None], solvers: StudySolvers) -> Callable[[int, dict], None]:
     """The smallest power limit's progress line, counted per model of the stage's space."""
     def report(i, row):
-        if "done" in row:  # the interior point: one batch
-            label = f"smallest power limit ({row.get('space', 'study space')})"
+        if "done" in row:  # the interior point: one batch per stage of the continuation
+            stage = f", J's weight {row['energy_weight']:g}" if "energy_weight" in row else ""
+            label = f"smallest power limit ({row.get('space', 'study space')}{stage})"
+            objective = "t + w J / J0" if row.get("energy_weight", 0.0) > 0 else "M_W / start"
             return say(f"{label}: interior-point iteration {i}, {int(np.sum(row['done']))} of "
-                       f"{row['done'].size} finished, M_W / start {np.array2string(row['cost'], precision=3)}",
+                       f"{row['done'].size} finished, {objective} {np.array2string(row['cost'], precision=3)}",
                        task=(label, int(np.sum(row["done"])), row["done"].size))
         space = row.get("space", "study space")
         label, cap = f"smallest power limit ({space})", (
