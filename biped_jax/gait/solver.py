@@ -67,6 +67,13 @@ def report_batch(batch: int) -> int:
     return max(REPORT_BATCH, ip.padded_batch(batch))
 
 
+def strongly_typed(leaf) -> jax.Array:
+    """``leaf`` as a JAX array of its own dtype, not weakly typed (a weakly typed leaf, from a Python
+    float, would compile a second program)."""
+    leaf = jnp.asarray(leaf)
+    return jnp.asarray(leaf, dtype=leaf.dtype)
+
+
 def stack_tree(trees: list):
     """A batch (leading dimension B) of pytrees with strong float64 leaves: a weakly typed leaf (from a
     Python float) would compile a second program."""
@@ -114,6 +121,17 @@ class GaitSolution:
     multipliers_in: np.ndarray
     refinement: dict = dataclasses.field(default_factory=dict)
     starts: list = dataclasses.field(default_factory=list)
+
+
+def _check_weights(energy_weights) -> tuple[float, ...]:
+    """The continuation's weights as floats; ValueError naming them unless a non-empty list or tuple of
+    finite numbers >= 0."""
+    weights = energy_weights if isinstance(energy_weights, (list, tuple)) else ()
+    if not weights or not all(isinstance(w, (int, float)) and not isinstance(w, bool) and np.isfinite(w)
+                              and w >= 0 for w in weights):
+        raise ValueError("energy_weights must be a non-empty list or tuple of numbers >= 0 (the weights of J "
+                         f"beside the limit, stage by stage), got {energy_weights!r:.80}")
+    return tuple(float(w) for w in weights)
 
 
 class GaitSolver:
@@ -243,9 +261,8 @@ class GaitSolver:
         x = jnp.asarray(x, dtype=jnp.result_type(float))
         batch = x.shape[0]
         size = report_batch(batch)
-        # strong float64 leaves padded with copies of the first row: one program whatever the batch
-        x, models = jax.tree.map(lambda a: ip.pad_rows(jnp.asarray(a, dtype=jnp.asarray(a).dtype), size),
-                                 (x, models))
+        # strongly typed leaves padded with copies of the first row: one program whatever the batch
+        x, models = jax.tree.map(lambda a: ip.pad_rows(strongly_typed(a), size), (x, models))
         sharding = ip.batch_sharding(size)
         if sharding is not None:
             x, models = jax.device_put((x, models), sharding)
@@ -317,15 +334,11 @@ class GaitSolver:
             raise ValueError("x0 is None: minimise_power_limit starts from gaits feasible at the models' "
                              "own limits, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
         x0 = self.check_batch(names, models, x0)
-        weights = energy_weights if isinstance(energy_weights, (list, tuple)) else ()
-        if not weights or not all(isinstance(w, (int, float)) and not isinstance(w, bool) and np.isfinite(w)
-                                  and w >= 0 for w in weights):
-            raise ValueError("energy_weights must be a non-empty list or tuple of numbers >= 0 (the weights of J "
-                             f"beside the limit, stage by stage), got {energy_weights!r:.80}")
+        weights = _check_weights(energy_weights)
         batch = stack_tree(models)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
         if isinstance(options, ip.InteriorPointOptions):
-            result = self._limit_continuation(start, batch, progress, tuple(float(w) for w in weights))
+            result = self._limit_continuation(start, batch, progress, weights)
         elif isinstance(options, sqp.SQPOptions):
             result = self._slsqp_power_limit(names, models, batch, x0, start, progress)
         else:
