@@ -1,8 +1,9 @@
 """Gradients per second of the optimiser's own objective, and MuJoCo C finite differences as baseline.
 
-The objective is the augmented Lagrangian of the M2 gait problem (cost, every constraint group, fixed
-multipliers and penalty), exactly the compiled, vmapped value-and-gradient function the solver calls
-(``GaitSolver.compiled.value_and_grad``); the decision vector has 2 + 4 x degree entries. Batches are
+The objective is the Lagrangian f + y . h + z . g of the M2 gait problem (cost, every constraint group,
+fixed multipliers) through the solver's own problem (``GaitSolver.problem.evaluate``), its gradient the
+reverse pass the interior point's exact derivatives start from; ``--segments 1`` for single shooting
+(default: one segment per knot span, the solver's default). Batches are
 B different decision vectors (vmap); compile time is measured apart, run time is the median of
 ``--repeats`` calls. The baseline evaluates the same function with MuJoCo C (``biped_jax.gait.mujoco_reference``)
 and takes central differences over the same decision vector, spread over all CPU cores with a process
@@ -33,25 +34,32 @@ def _problem(settings):
     x0 = jax.jit(lambda m: gait.initial_guess(m, settings))(model)
     trajectory = jax.jit(lambda x, m: gait.simulate(x, m, solver.biped, settings))(x0, model)
     h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, settings))
-    multipliers = (0.1 * jnp.ones(h.size), 0.1 * jnp.ones(g.size), 100.0)
+    multipliers = (0.1 * jnp.ones(h.size), 0.1 * jnp.ones(g.size))
     return solver, model, np.asarray(x0), multipliers
+
+
+def lagrangian_value(f, h, g, lam_eq, lam_in):
+    """The Lagrangian f + y . h + z . g."""
+    return f + h @ lam_eq + g @ lam_in
 
 
 def _inputs(model, x0, multipliers, batch):
     offsets = 0.01 * np.sin(np.arange(batch)[:, None] + np.arange(x0.size)[None])
-    lam_eq, lam_in, rho = multipliers
+    lam_eq, lam_in = multipliers
     tile = lambda a: jnp.broadcast_to(a, (batch,) + jnp.shape(a))  # noqa: E731
-    return (jnp.asarray(x0 + offsets), jax.tree.map(tile, model), tile(lam_eq), tile(lam_in),
-            jnp.full((batch,), rho))
+    return jnp.asarray(x0 + offsets), jax.tree.map(tile, model), tile(lam_eq), tile(lam_in)
 
 
 def measure_mjx(solver, model, x0, multipliers, batch, repeats):
     args = _inputs(model, x0, multipliers, batch)
+
+    def lagrangian(x, model_, lam_eq, lam_in):
+        return lagrangian_value(*solver.problem.evaluate(x, model_), lam_eq, lam_in)
     started = time.perf_counter()
-    compiled = solver.compiled.value_and_grad.lower(*args).compile()
+    compiled = jax.jit(jax.vmap(jax.value_and_grad(lagrangian))).lower(*args).compile()
     compile_s = time.perf_counter() - started
     seconds = median_seconds(compiled, args, repeats)
-    (_, _), gradient = compiled(*args)
+    _, gradient = compiled(*args)
     return {"backend": "mjx", "batch": batch, "compile_s": compile_s, "seconds_per_call": seconds,
             "gradients_per_second": batch / seconds, "ms_per_gradient": 1e3 * seconds / batch}, \
         np.asarray(gradient[0])
@@ -71,12 +79,10 @@ def _worker_init(settings, multipliers):
     _WORKER["settings"] = settings
     _WORKER["multipliers"] = tuple(np.asarray(m) for m in multipliers)
 
-    from biped_jax.optim import augmented_lagrangian as al
-
     @jax.jit
-    def merit(trajectory, model, lam_eq, lam_in, rho):  # the cheap algebra after the C rollout
+    def merit(trajectory, model, lam_eq, lam_in):  # the cheap algebra after the C rollout
         h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, settings))
-        return al.lagrangian_value(gait.cost(trajectory), h, g, lam_eq, lam_in, rho)
+        return lagrangian_value(gait.cost(trajectory), h, g, lam_eq, lam_in)
     _WORKER["merit"] = merit
 
 
@@ -116,6 +122,7 @@ def main():
     parser.add_argument("--spans", type=int, default=16, help="knot spans of the joint B-splines (default 16)")
     parser.add_argument("--degree", type=int, default=3, help="B-spline degree (default 3)")
     parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8)")
+    parser.add_argument("--segments", type=int, default=None, help="shooting segments (default: one per span)")
     parser.add_argument("--batch", type=int, nargs="+", default=[1, 16, 256, 1024])
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-baseline", action="store_true", help="skip the MuJoCo C baseline")
@@ -127,7 +134,7 @@ def main():
     jax.config.update("jax_enable_x64", True)
     from biped_jax.gait import problem as gait
     settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
-                                dynamics=args.dynamics)
+                                dynamics=args.dynamics, segments=args.segments)
     solver, model, x0, multipliers = _problem(settings)
     rows, mjx_gradient = [], None
     print(f"{'backend':32s} {'batch':>6s} {'compile s':>10s} {'ms/call':>10s} {'grad/s':>10s} {'ms/grad':>8s}")

@@ -6,7 +6,7 @@ with the shooting nodes on the peer's stance angle and rate, reports J and the v
 in our transcription, then solves our problem from it. This is a diagnostic of the transcription and
 the solver, never a product start (the study solves from its own heuristics only).
 
-    python benchmarks/peer_basin.py --segments 16 --penalty-initial 1e3 --gauss-newton
+    python benchmarks/peer_basin.py --segments 16
 
 Needs the ``bench`` extra (casadi).
 """
@@ -52,10 +52,9 @@ def main():
     parser.add_argument("--peer-segments", type=int, default=30)
     parser.add_argument("--spans", type=int, default=16)
     parser.add_argument("--segments", type=int, default=16, help="our shooting segments (1: single shooting)")
-    parser.add_argument("--penalty-initial", type=float, default=1e3)
-    parser.add_argument("--gauss-newton", action="store_true",
-                        help="a Gauss-Newton step every inner iteration, 15 per multiplier update, uncapped")
-    parser.add_argument("--max-outer", type=int, default=40)
+    parser.add_argument("--mu-initial", type=float, default=1e-3,
+                        help="the interior point's first barrier parameter (default 1e-3, a warm start)")
+    parser.add_argument("--max-iterations", type=int, default=300)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
@@ -69,10 +68,8 @@ def main():
     peer = solve(PeerProblem(PLANAR_SPECS[args.mass_class], args.speed, args.power_limit), args.peer_segments)
     print(f"peer: J = {peer['cost']:.4f} ({peer['status']}, {args.peer_segments} segments)", flush=True)
     settings = gait.GaitSettings(spans=args.spans, segments=args.segments)
-    options = dict(penalty_initial=args.penalty_initial, max_outer=args.max_outer)
-    if args.gauss_newton:
-        options.update(penalty_growth=3.0, penalty_max=1e9, max_inner=15, precondition_every=1, cap_first_step=False)
-    solver = GaitSolver(settings, mass_class_template=args.mass_class).with_options(**options)
+    solver = GaitSolver(settings, mass_class_template=args.mass_class).with_options(
+        mu_initial=args.mu_initial, max_iterations=args.max_iterations)
     model = gait.gait_model(args.mass_class, args.speed, args.power_limit)
     x0 = fitted_start(peer, settings)
     fit = jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(
@@ -82,8 +79,8 @@ def main():
           + ", ".join(f"{k} {v:.1e}" for k, v in fit_violations.items() if v > 1e-4), flush=True)
     started = time.perf_counter()
     def progress(i, row):
-        print(f"  outer {i + 1}: J {float(row['cost'][0]):.4f}, scaled violation "
-              f"{float(row['violation'][0]):.1e}, penalty {float(row['penalty'][0]):.0e}, "
+        print(f"  iteration {i}: J {float(row['cost'][0]):.4f}, scaled violation "
+              f"{float(row['violation'][0]):.1e}, KKT error {float(row['error'][0]):.0e}, "
               f"{time.perf_counter() - started:.0f} s", flush=True)
 
     solution, = solver.solve(["from the peer's basin"], [model], x0=jnp.asarray(x0)[None], progress=progress)

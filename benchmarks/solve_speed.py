@@ -1,5 +1,5 @@
-"""Time to solve the gait problem: M2 cold (compilation included) and warm, and the four-model batch,
-with SLSQP (the study's solver, the default) or the batched augmented Lagrangian (``--solver al``).
+"""Time to solve the gait problem with the batched interior point: M2 cold (compilation included) and
+warm, and the four-model batch.
 
 Cold means a fresh process with JAX's persistent compilation cache off (unless --cache is given), so
 the figure is what a first-time user waits. Prints a table and saves JSON.
@@ -23,8 +23,6 @@ def main():
     parser.add_argument("--cache", type=Path, default=None, help="use this persistent cache folder")
     parser.add_argument("--dynamics", choices=("mjx", "chain"), default="chain",
                         help="single-support dynamics of the rollout (default chain)")
-    parser.add_argument("--solver", choices=("sqp", "al"), default="sqp",
-                        help="sqp: SLSQP, one model after another (default); al: the batched augmented Lagrangian")
     parser.add_argument("--name", default="solve_speed", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
@@ -34,7 +32,7 @@ def main():
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
     from biped_jax.gait import problem as gait
-    from biped_jax.gait.solver import GAIT_SOLVER_OPTIONS, GaitSolver
+    from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import paper as study
 
     settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
@@ -45,14 +43,14 @@ def main():
         seconds = time.perf_counter() - started
         row = {"case": label, "seconds": seconds, "designs_per_second": len(solutions) / seconds,
                "status": [s.status for s in solutions], "cost": [s.cost for s in solutions],
-               "gradients": [s.gradients for s in solutions]}
+               "iterations": [s.outer_iterations for s in solutions]}
         rows.append(row)
         print(f"{label:38s} {seconds:8.1f} s  {row['status']}  J = "
               + ", ".join(f"{c:.4g}" for c in row["cost"]), flush=True)
 
     m2 = [gait.gait_model("12kg", 0.555, 20.0)]
     started = time.perf_counter()
-    solver = GaitSolver(settings, study.SQP_OPTIONS if args.solver == "sqp" else GAIT_SOLVER_OPTIONS)
+    solver = GaitSolver(settings)
     record("M2 cold (compile + solve)", started, solver.solve(["M2"], m2))
     started = time.perf_counter()
     record("M2 warm (compiled, heuristic start)", started, solver.solve(["M2"], m2))
@@ -65,7 +63,7 @@ def main():
     record("M1-M4 batch warm (compiled)", started, solver.solve(names, models))
 
     save_results(args.name, {"spans": args.spans, "degree": args.degree,
-                                 "substeps": args.substeps, "dynamics": args.dynamics, "solver": args.solver,
+                                 "substeps": args.substeps, "dynamics": args.dynamics, "solver": "interior point",
                                  "persistent_cache": bool(args.cache)}, rows, args.out)
 
 

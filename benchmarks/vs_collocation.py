@@ -3,10 +3,9 @@
 For each case (M1-M4 at the paper's power limits, and M3, M4 at 20 W; M1 and M2's own limits are
 20 W) this solves the planar-step problem twice:
 
-- **ours**: ``biped_jax`` as the study runs it (``multistart.solve_multistart`` with SLSQP: every start
-  family of ``study.STUDY_FAMILIES`` in the coarse space, the cheapest per model carried into the
-  study's space, 20 W warm-started from it; ``--solver al`` runs the augmented-Lagrangian continuation
-  of ``continuation.solve_paper_models`` instead), from its own starts only;
+- **ours**: ``biped_jax`` as the study runs it (``multistart.solve_multistart`` with the batched
+  interior point: every start family of ``study.STUDY_FAMILIES`` in the coarse space, the cheapest per
+  model carried into the study's space, 20 W warm-started from it), from its own starts only;
 - **peer**: ``collocation_peer.solve`` (CasADi + IPOPT, Hermite-Simpson, written from the spec), on
   ``--segments`` segments and again on twice as many (its own mesh check).
 
@@ -49,7 +48,6 @@ def main():
     parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
     parser.add_argument("--spans", type=int, default=None, help="ours (default: the study's)")
     parser.add_argument("--substeps", type=int, default=None, help="ours (default: the study's)")
-    parser.add_argument("--solver", choices=("sqp", "al"), default="sqp")
     parser.add_argument("--shooting-segments", type=int, default=None,
                         help="our shooting segments (default: the study's)")
     parser.add_argument("--warm", action="store_true", help="solve ours a second time for the warm wall time")
@@ -63,8 +61,6 @@ def main():
 
     from biped_jax.gait import problem as gait
     from biped_jax.gait import multistart
-    from biped_jax.gait.solver import GaitSolver
-    from biped_jax.studies import continuation
     from biped_jax.studies import paper as study
 
     cases = [(m, m.power_limit) for m in study.PAPER_MODELS] + [(m, 20.0) for m in study.PAPER_MODELS]
@@ -81,15 +77,10 @@ def main():
     at_20 = [c for c in cases if c[1] != c[0].power_limit]
 
     # compiled on first use, reused when warm
-    if args.solver == "sqp":
-        solvers = study.study_solvers(settings, "sqp")
-        solver, coarse = solvers.fine, solvers.coarse
-    else:
-        solver = GaitSolver(settings, continuation.CONTINUATION_OPTIONS)
+    solvers = study.study_solvers(settings)
+    solver, coarse = solvers.fine, solvers.coarse
 
     def paper_models():
-        if args.solver == "al":
-            return continuation.solve_paper_models(solver, rows=rows, progress=print)[0]
         models = [gait.gait_model(m.mass_class, m.speed, m.power_limit) for m in rows]
         return multistart.solve_multistart(solver, [m.name for m in rows], models, families=study.STUDY_FAMILIES,
                                             coarse=coarse)
@@ -134,7 +125,7 @@ def main():
     warm = "not measured (--warm)" if ours_warm is None else f"{ours_warm:.0f} s warm"
     print(f"ours: {len(cases)} cases, {ours_time:.0f} s cold (compile included), {warm}")
     save_results(args.name, {"segments": args.segments, "spans": settings.spans, "substeps": settings.substeps,
-                             "shooting_segments": settings.segments, "solver": args.solver},
+                             "shooting_segments": settings.segments, "solver": "interior point"},
                  rows, args.out)
 
 

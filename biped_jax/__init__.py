@@ -2,10 +2,11 @@
 
 Subpackages in the order of the data flow (README "Module map"): ``robots`` (registry, specifications,
 MJCF, design arrays), ``dynamics`` (the walking step in MJX and the planar chain in closed form),
-``optim`` (augmented Lagrangian, SLSQP), ``gait`` (the optimal walking step: problem, solver, report,
-heuristic starts, MuJoCo C reference), ``drives`` (motors and gearheads, drive-train selection),
-``codesign``, ``donald``, ``humanoid``, ``studies`` (one module per command-line study), ``report``
-(output files, compile profiles); ``checks`` (input validation) and ``cli`` (the ``biped-jax`` command).
+``optim`` (the batched interior point and its exact derivatives), ``gait`` (the optimal walking step:
+problem, solver, report, heuristic starts, MuJoCo C reference), ``drives`` (motors and gearheads,
+drive-train selection), ``codesign``, ``donald``, ``humanoid``, ``studies`` (one module per
+command-line study), ``report`` (output files, compile profiles); ``checks`` (input validation) and
+``cli`` (the ``biped-jax`` command).
 
 The names below load on first use (PEP 562), so ``import biped_jax`` and the command line's argument
 checks do not wait for JAX and MuJoCo to import.

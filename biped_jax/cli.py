@@ -99,9 +99,6 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--quick", action="store_true",
                      help="a coarse first look in a few minutes (8 knot spans, 3 start families; overrides "
                           "--spans/--substeps/--segments); every file it writes says so")
-    run.add_argument("--solver", choices=("ip", "sqp", "al"), default="sqp",
-                     help="sqp: SLSQP from every start family (default); ip: the batched interior point; "
-                          "al: the batched augmented Lagrangian")
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted study in --out from its finished stages (OUT/stages)")
@@ -133,9 +130,6 @@ def _parser() -> argparse.ArgumentParser:
     design.add_argument("--iterations", type=_integer("iterations", 1, 1000), default=5,
                         help="co-optimisation iterations, 1-1000 (default 5)")
     design.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
-    design.add_argument("--solver", choices=("sqp", "ip", "al"), default="sqp",
-                        help="sqp: SLSQP, one design after another (default); ip: the batched interior point, "
-                             "every chunk of designs in one program; al: the batched augmented Lagrangian")
     design.add_argument("--resume", action="store_true",
                         help="continue interrupted studies in --out from their finished parts (OUT/stages)")
     drive = subcommands.add_parser("drives", help="drive-train selection (Table 6, Figs. 4-5) from solved gaits")

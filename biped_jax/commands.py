@@ -50,7 +50,7 @@ def heuristic_steps(out: Path) -> dict:
     return results
 
 
-def reproduce(out: Path, settings, resume: bool = False, method: str = "sqp", quick: bool = False) -> dict:
+def reproduce(out: Path, settings, resume: bool = False, quick: bool = False) -> dict:
     """The paper's study with a live progress display; see :func:`biped_jax.studies.paper.run_study`. ``quick``:
     the coarse look of :data:`biped_jax.studies.paper.QUICK_SETTINGS` (``settings`` ignored), every file stamped."""
     from biped_jax.studies import paper as study
@@ -60,10 +60,10 @@ def reproduce(out: Path, settings, resume: bool = False, method: str = "sqp", qu
     with live_progress(("M1-M4", "20 W:", "restart:", "smallest power limit")) as progress, stamp:
         if quick:
             console.log(study.QUICK_STAMP)
-            results = study.run_study(out, study.QUICK_SETTINGS, progress, resume=resume, method=method,
+            results = study.run_study(out, study.QUICK_SETTINGS, progress, resume=resume,
                                       families=study.QUICK_FAMILIES)
         else:
-            results = study.run_study(out, settings, progress, resume=resume, method=method)
+            results = study.run_study(out, settings, progress, resume=resume)
     for record in results["models"]:
         check = record["refinement"]
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -152,14 +152,13 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
     return report
 
 
-def codesign(out: Path, settings, iterations: int, resume: bool = False, solver: str = "sqp") -> dict:
+def codesign(out: Path, settings, iterations: int, resume: bool = False) -> dict:
     """The co-design studies; see :mod:`biped_jax.studies.codesign`."""
     from biped_jax.studies import codesign as codesign_study
 
     started = time.perf_counter()
     with live_progress() as progress:
-        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume,
-                                               solver_name=solver)
+        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume)
     for speed, fit in results["mass_scaling"]["fits"].items():
         console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
                       f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
@@ -188,7 +187,7 @@ def _settings(args):
     try:
         return GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
                             dynamics=getattr(args, "dynamics", "chain"),
-                            segments=getattr(args, "segments", 1) or args.spans)
+                            segments=getattr(args, "segments", None))
     except ValueError as error:
         args.parser.error(str(error))
 
@@ -271,13 +270,13 @@ def run_humanoid(args) -> int:
 
 def run_codesign(args) -> int:
     configure_jax()
-    codesign(args.out, _settings(args), args.iterations, args.resume, args.solver)
+    codesign(args.out, _settings(args), args.iterations, args.resume)
     return 0
 
 
 def run_reproduce(args) -> int:
     configure_jax()
-    reproduce(args.out, _settings(args), args.resume, args.solver, args.quick)
+    reproduce(args.out, _settings(args), args.resume, args.quick)
     return 0
 
 

@@ -95,14 +95,14 @@ def paper_solutions(short_solver):
 #: --no-loadscope-reorder): the last group to start should be a short one. Seconds of compiling on an empty
 #: cache, two workers, measured 2026-12-03 (commit c0b4a4c, BIPED_JAX_TEST_COMPILES): the quickstart's
 #: programs and single support 97, the gait 84, the rollout gradient 62, mjx.forward 54, the design (with the
-#: variants check) 43, DONALD 43, the command line 40, SLSQP 39, the humanoid 29, the rest under 26; the interior
+#: variants check) 43, DONALD 43, the command line 40, the humanoid 29, the rest under 26; the interior
 #: point (its gait check) about 45, measured 2026-12-03 in a full run; with the smallest power limit's KKT
 #: check about 120 (2026-12-04, 72 s of it compiling; first in the order measured no faster, 604 s against 595 s).
 HEAVY_FIRST = ("mjx_quickstart", "test_gait", "mjx_gradient", "mjx_forward", "test_interior_point", "test_design",
                "test_local_derivatives",
                "donald", "test_cli",
-               "test_sqp", "test_humanoid", "test_hybrid_step", "test_codesign", "test_readme",
-               "test_augmented_lagrangian", "test_planar_chain", "test_models")
+               "test_humanoid", "test_hybrid_step", "test_codesign", "test_readme",
+               "test_planar_chain", "test_models")
 
 
 @pytest.hookimpl(tryfirst=True)

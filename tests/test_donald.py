@@ -156,3 +156,51 @@ def test_a_walk_shorter_than_its_gait_is_rejected():
     needed = donald_study.walk_duration(donald.DEFAULT_GAIT, 2)
     with pytest.raises(ValueError, match="shorter than the gait's 2 steps"):
         donald_study.walk(2, duration=needed - 0.5)
+
+
+def test_central_differences_give_the_exact_gradient_of_a_quadratic():
+    """Central differences are exact for quadratics (whatever the step), through vmap, for the objective
+    and every constraint; the value is the function's own and the parameters get no derivative."""
+    import jax
+
+    from biped_jax.optim import nlp
+    q = jnp.array([[3.0, 1.0], [1.0, 2.0]])
+
+    def evaluate(x, p):
+        return 0.5 * x @ q @ x - p @ x, jnp.array([x[0] - 2 * x[1] - 0.5]), jnp.array([x @ x - 1.0])
+    smoothed = nlp.central_differences(evaluate, step=0.3)
+    x = jnp.array([[0.4, -0.7], [1.5, 0.2]])
+    p = jnp.array([[1.0, 2.0], [-1.0, 0.5]])
+    weights = jnp.array([1.0, -2.0, 0.7])
+
+    def scalar(fn):
+        return lambda x_, p_: jnp.stack([o.sum() for o in fn(x_, p_)]) @ weights
+    exact = jax.vmap(jax.grad(scalar(evaluate)))(x, p)
+    differenced = jax.jit(jax.vmap(jax.grad(scalar(smoothed))))(x, p)
+    np.testing.assert_allclose(differenced, exact, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(smoothed(x[0], p[0])[0], evaluate(x[0], p[0])[0], rtol=0)
+    assert float(jnp.abs(jax.grad(lambda p_: smoothed(x[0], p_)[0])(p[0])).max()) == 0.0
+
+
+def projection(z, _params):
+    """min |z - (2, 1)|^2 subject to z1 + z2 <= 2 and z1 >= -5: the optimum (1.5, 0.5), the first
+    constraint active with multiplier 1, the second inactive."""
+    return jnp.sum((z - jnp.array([2.0, 1.0])) ** 2), jnp.zeros(0), jnp.array([z[0] + z[1] - 2.0, -5.0 - z[0]])
+
+
+def test_the_speed_optimisers_loop_finds_a_known_constrained_optimum():
+    """DONALD's own augmented Lagrangian over optax's L-BFGS (biped_jax.donald.speed.minimise) on a
+    problem with a known optimum: converged there, the multiplier update settled; with one outer
+    iteration only it says "iteration limit", not converged."""
+    from biped_jax.donald import speed as donald_speed
+    from biped_jax.optim import nlp
+    heard = []
+    result = donald_speed.minimise(projection, jnp.zeros(2), progress=lambda i, row: heard.append(row))
+    assert result["status"] == nlp.CONVERGED
+    np.testing.assert_allclose(result["z"], [1.5, 0.5], atol=1e-3)
+    assert result["cost"] == pytest.approx(0.5, abs=1e-3) and result["start_cost"] == pytest.approx(5.0)
+    assert result["violation"] <= donald_speed.SPEED_OPTIONS.tolerance
+    assert len(heard) == len(result["iterates"]) >= 2
+    short = donald_speed.minimise(projection, jnp.zeros(2), dataclasses.replace(donald_speed.SPEED_OPTIONS,
+                                                                                max_outer=1))
+    assert short["status"] == nlp.ITERATION_LIMIT

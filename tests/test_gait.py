@@ -3,7 +3,6 @@ refinement check, the multistart's spread, bad input, short-horizon gaits that c
 values recomputed from the trajectory."""
 
 import dataclasses
-import types
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +18,6 @@ from biped_jax.gait import report as gait_report
 from biped_jax.gait import multistart
 from biped_jax.gait import verdict
 from biped_jax.gait import solver as gait_solver
-from biped_jax.optim import augmented_lagrangian as al
 from biped_jax.optim import nlp
 
 # Short horizon for the tests: the same code as the study, fewer knot spans and steps.
@@ -152,12 +150,14 @@ def test_start_state_and_first_sample_are_consistent(solver, heuristic):
 def test_integrator_and_quadrature_converge_at_fourth_order(biped12):
     """The same decision vector on grids 2, 4, 8, 16 steps per span against 64: the stance angle at
     touchdown and J converge at the 4th order of RK4 and Simpson (each halving divides the error by
-    about 16)."""
+    about 16). Single shooting: the whole step one integration from the start state (a heuristic start
+    is not continuous across shooting nodes)."""
     model = gait.gait_model("12kg", 0.555, 20.0)
-    x = gait.initial_guess(model, SETTINGS, family=gait.START_FAMILIES[1])
+    single_shot = dataclasses.replace(SETTINGS, segments=1)
+    x = gait.initial_guess(model, single_shot, family=gait.START_FAMILIES[1])
     results = {}
     for substeps in (2, 4, 8, 16, 64):
-        settings = dataclasses.replace(SETTINGS, substeps=substeps)
+        settings = dataclasses.replace(single_shot, substeps=substeps)
         trajectory = jax.jit(lambda x_: gait.simulate(x_, model, biped12, settings))(x)
         results[substeps] = (float(trajectory.q[-1, 0]), float(trajectory.qd[-1, 0]), float(gait.cost(trajectory)))
     exact = np.array(results[64])
@@ -331,30 +331,32 @@ def test_mjx_rollout_matches_mujoco_c_on_the_optimal_gait(m2_solution):
 
 @pytest.mark.slow
 def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_solution):
-    """The gradient the optimiser follows (MJX autodiff of the augmented Lagrangian) against central
-    differences of the same function evaluated with MuJoCo C."""
+    """The gradient of the Lagrangian f + y . h + z . g (MJX autodiff, the reverse pass the interior
+    point's derivatives start from) against central differences of the same function evaluated with
+    MuJoCo C."""
     from biped_jax.gait.mujoco_reference import CGaitRollout
     model = gait.gait_model("12kg", 0.555, 20.0)
     rollout = CGaitRollout("12kg", SETTINGS)
     x = np.asarray(m2_solution.x) + 0.01 * np.cos(np.arange(SETTINGS.size))  # off the optimum
     h_size, g_size = (a.size for a in gait.scaled_constraints(gait.constraint_groups(
         m2_solution.trajectory, model, SETTINGS)))
-    lam_eq, lam_in, rho = 0.3 * np.ones(h_size), 0.2 * np.ones(g_size), 50.0
+    lam_eq, lam_in = 0.3 * np.ones(h_size), 0.2 * np.ones(g_size)
+
+    def lagrangian(f, h, g):
+        return f + h @ lam_eq + g @ lam_in
 
     def lagrangian_c(x_):
         trajectory = rollout.simulate(x_, 0.555, 0.2)
         h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, SETTINGS))
-        return float(al.lagrangian_value(gait.cost(trajectory), h, g, lam_eq, lam_in, rho))
+        return float(lagrangian(gait.cost(trajectory), h, g))
 
-    # a batch of four, the shape paper_solutions compiled, so no new program is compiled here
-    tile = lambda a: jnp.broadcast_to(jnp.asarray(a), (4,) + jnp.shape(a))  # noqa: E731
-    (value, _), gradient = solver.compiled.value_and_grad(
-        tile(x), jax.tree.map(tile, model), tile(lam_eq), tile(lam_in), tile(rho))
-    assert float(value[0]) == pytest.approx(lagrangian_c(x), rel=1e-9)
+    value, gradient = jax.jit(jax.value_and_grad(lambda x_: lagrangian(*solver.problem.evaluate(x_, model))))(
+        jnp.asarray(x))
+    assert float(value) == pytest.approx(lagrangian_c(x), rel=1e-9)
     step = 1e-6
     central = np.array([(lagrangian_c(x + step * e) - lagrangian_c(x - step * e)) / (2 * step)
                         for e in np.eye(x.size)])
-    np.testing.assert_allclose(gradient[0], central, rtol=1e-5, atol=1e-5 * np.abs(central).max())
+    np.testing.assert_allclose(gradient, central, rtol=1e-5, atol=1e-5 * np.abs(central).max())
 
 
 @pytest.mark.slow
@@ -363,13 +365,14 @@ def test_multiple_shooting_reproduces_single_shooting_and_reports_its_defects(bi
     defects vanish); a node moved off it shows up as exactly that defect, the same in MuJoCo C."""
     from biped_jax.gait.mujoco_reference import CGaitRollout
     model = gait.gait_model("12kg", 0.555, 20.0)
+    single_shot = dataclasses.replace(SETTINGS, segments=1)
     multi = dataclasses.replace(SETTINGS, segments=SETTINGS.spans)
-    x = gait.initial_guess(model, SETTINGS, family=gait.START_FAMILIES[1])
-    single = jax.jit(lambda x_: gait.simulate(x_, model, biped12, SETTINGS))(x)
+    x = gait.initial_guess(model, single_shot, family=gait.START_FAMILIES[1])
+    single = jax.jit(lambda x_: gait.simulate(x_, model, biped12, single_shot))(x)
     starts = np.arange(multi.segments) * (multi.steps // multi.segments)
     nodes = np.stack([np.asarray(single.q)[starts, 0], np.asarray(single.qd)[starts, 0]], axis=-1)
-    x_multi = gait.pack(nodes, gait.control_points(x, SETTINGS)[1:])
-    assert x_multi.shape == (multi.size,) == (SETTINGS.size + 2 * (multi.segments - 1),)
+    x_multi = gait.pack(nodes, gait.control_points(x, single_shot)[1:])
+    assert x_multi.shape == (multi.size,) == (single_shot.size + 2 * (multi.segments - 1),)
     simulate = jax.jit(lambda x_: gait.simulate(x_, model, biped12, multi))
     shot = simulate(x_multi)
     for name in ("q", "qd", "u", "ground_force"):
@@ -406,46 +409,3 @@ def test_start_family_can_land_on_a_flexed_stance_knee():
         q = np.asarray(gait.reference(x, SETTINGS, np.array([0.0, 1.0]))[0])  # (H1, K1, H2, K2) at 0, t_f
         assert q[1, 1] == pytest.approx(knee, abs=1e-12) and q[0, 3] == pytest.approx(knee, abs=1e-12)
         assert q[0, 1] == pytest.approx(0.0, abs=1e-12)
-
-
-def test_continuation_keeps_the_cheapest_feasible_family_per_model_and_solves_it_at_the_limit():
-    """continuation.solve_paper_models' bookkeeping, with a stand-in solver (no compilation): per model the
-    cheapest converged family without a power limit is carried to the model's own limit, every family's
-    outcome is listed, and a model with no converged family carries its least violated start."""
-    from biped_jax.studies import continuation
-    from biped_jax.studies import paper as study
-
-    class StandIn:
-        settings, leg_length = short_settings(), 0.29
-        options = gait_solver.GAIT_SOLVER_OPTIONS
-
-        def __init__(self):
-            self.calls = []
-
-        def with_options(self, **changes):
-            return self
-
-        def solve(self, names, models, x0=None, progress=None):
-            self.calls.append((np.asarray(x0), [float(m.power_limit) for m in models]))
-            family = len(self.calls) - 1
-            # model 0: family 1 cheapest of the converged; model 1: nothing converges, family 2 least violated
-            table = {0: [(nlp.CONVERGED, 3.0, 0.0), (nlp.CONVERGED, 2.0, 0.0), (nlp.ITERATION_LIMIT, 1.0, 1e-2)],
-                     1: [(nlp.ITERATION_LIMIT, 3.0, 5e-2), (nlp.STALLED, 2.0, 3e-2), (nlp.ITERATION_LIMIT, 1.0, 1e-3)]}
-            out = []
-            for b, name in enumerate(names):
-                status, cost, violation = table[b][family] if family < 3 else (nlp.CONVERGED, 9.0, 0.0)
-                out.append(types.SimpleNamespace(name=name, status=status, cost=cost, max_violation=violation,
-                                                 x=np.full(x0.shape[1], 10.0 * family + b), starts=[]))
-            return out
-
-    families = gait.IMPACT_FAMILIES
-    rows = study.PAPER_MODELS[1:3]  # M2 (20 W), M3 (25 W)
-    solver = StandIn()
-    solutions, by_family = continuation.solve_paper_models(solver, families=families, rows=rows)
-    assert [limits for _, limits in solver.calls] == [[continuation.FREE_POWER_LIMIT] * 2] * 3 + [[20.0, 25.0]]
-    carried = solver.calls[-1][0]
-    np.testing.assert_array_equal(carried[:, 0], [10.0 * 1 + 0, 10.0 * 2 + 1])
-    assert [len(s.starts) for s in solutions] == [3, 3] and len(by_family) == 3
-    assert [row["carried_on"] for row in solutions[0].starts] == [False, True, False]
-    assert [row["family"] for row in solutions[1].starts] == [f.name for f in families]
-    assert all(f.impact_knee > 0 for f in gait.IMPACT_FAMILIES)

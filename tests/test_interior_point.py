@@ -192,15 +192,11 @@ KKT_TOLERANCE = 1e-5
 
 
 @pytest.fixture(scope="module")
-def interior_gaits():
-    """M1-M4 in the tests' short space (4 knot spans, single shooting) from the default start family, in
-    one batch of the batched interior point (no refinement check: its rollout is the gait tests')."""
-    from conftest import short_settings
-    from biped_jax.gait.solver import GaitSolver
+def interior_gaits(short_solver, paper_solutions):
+    """M1-M4 in the tests' short space (4 knot spans, a shooting segment each) from the default start
+    family, in one batch of the batched interior point: the gait tests' solutions."""
     from biped_jax.studies import paper as study
-    solver = GaitSolver(short_settings(), study.IP_OPTIONS, check_refinement=False)
-    models = study.paper_gait_models(study.PAPER_MODELS)
-    return solver, models, solver.solve([r.name for r in study.PAPER_MODELS], models)
+    return short_solver, study.paper_gait_models(study.PAPER_MODELS), paper_solutions
 
 
 def central_differences(evaluate, point, params, step=1e-6):

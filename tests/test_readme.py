@@ -33,6 +33,7 @@ def test_model_loading_snippet():
     assert namespace["mjx_model"].nv == 22
 
 
+@pytest.mark.xdist_group("test_gait")  # the batch of M1-M4 the gait tests' fixture compiles: one worker, one compile
 def test_gait_snippet_solves_m2_within_the_power_limit():
     namespace = {}
     exec(compile(_python_blocks()[2], "README gait", "exec"), namespace)

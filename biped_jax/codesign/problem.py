@@ -6,7 +6,7 @@ to the gait problem by :func:`~biped_jax.codesign.drive_design.gait_model`. So o
 (``GaitSolver``) solves any batch of designs (:func:`solve_designs`), and the paper's problem is the
 special case of ideal drives. Gradients of the optimal Joule energy with respect to the design come
 from the envelope theorem (:func:`biped_jax.optim.nlp.optimal_value_gradient`): at a
-converged gait, one gradient of the Lagrangian with the solver's multipliers (SLSQP's, see
+converged gait, one gradient of the Lagrangian with the interior point's multipliers (see
 :data:`SOLVER_OPTIONS`), no differentiation through the solver. Chosen over implicit differentiation
 of the KKT system (needs the Lagrangian's Hessian through the rollout: a second-order program that
 compiles for minutes on a small CPU) and over design variables as extra decision variables (couples
@@ -41,8 +41,8 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
 )
 from biped_jax.drives import model as drive_model
 from biped_jax.gait import problem as gait
+from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
-from biped_jax.optim import sqp
 
 __all__ = [
     "CoOptimisation",
@@ -65,14 +65,14 @@ __all__ = [
     "with_ratio",
 ]
 
-#: The co-design's gait solver: SLSQP (one design after another), as the study's. The batched augmented
-#: Lagrangian (``GaitSolver``'s default) stops at a stationarity of 1e-2, and there neighbouring designs
-#: land on different local optima: measured 2026-12-02 on the tests' 4-span grid at 66:1 * exp(+-0.03),
-#: its J* were 5.24 / 5.80 / 4.64 with the gaits 0.58-0.66 rad apart, so the envelope gradient (-10.8 per
-#: log N) and the difference of the optima disagreed; SLSQP's optima of the same three designs are
-#: 5.789 / 5.472 / 5.174, 0.026 rad apart, and its multipliers give -10.240 against the difference's
-#: -10.248. The iteration cap bounds a design without a gait (a too-high speed in a bisection).
-SOLVER_OPTIONS = sqp.SQPOptions(max_iterations=300)
+#: The co-design's gait solver: the batched interior point warm-started from a solved gait (a
+#: neighbouring design's), from a small barrier parameter, as the study's warm stages. The envelope
+#: gradient needs a KKT point and its multipliers, not a point that merely stops improving: a solver
+#: that stopped at a loose stationarity left neighbouring designs on different local optima, whose
+#: envelope gradient and difference of optima disagreed (measured on the tests' 4-span grid at
+#: 66:1 * exp(+-0.03); ``tests/test_codesign.py`` compares the two). The iteration cap bounds a design
+#: without a gait (a too-high speed in a bisection).
+SOLVER_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-3, max_iterations=300)
 
 
 # ----------------------------------------------------------------------------- batch evaluation

@@ -1,5 +1,6 @@
 """Making DONALD faster: its gait parameters optimised for speed by single shooting through the MJX
-contact simulation, with the augmented-Lagrangian solver of the gait optimiser.
+contact simulation, by a short augmented-Lagrangian loop of its own around optax's L-BFGS
+(:func:`optimise`).
 
 Decision vector (7 numbers, scaled so each is of order one): step angle, lift angle and pendulum
 angle (rad), and the shift, lift, swing and lower durations (s), as multiples of the default gait's.
@@ -26,19 +27,24 @@ differences over a few per cent of each parameter show the trend (they agree in 
 
 The motor limits need no constraint: every joint's torque is clipped to its drive's speed-torque line
 inside the simulation, so a gait that asks for more than the motors give fails the other constraints.
+
+Why not the gait optimiser's interior point: it needs the Lagrangian's exact Hessian, and through 5 700
+contact steps second derivatives are noise, as the first ones are; with seven parameters and
+difference gradients, a first-order method over a smoothed objective is the right tool.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from biped_jax.donald import model as donald
 from biped_jax.drives import model as drives
-from biped_jax.optim import augmented_lagrangian as al
 from biped_jax.optim import nlp
 
 STEPS = 3
@@ -124,17 +130,113 @@ def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive:
     return -speed / 0.01, jnp.zeros(0), inequalities
 
 
-#: Solver settings: one gradient is 15 rollouts of 5 700 contact steps (about 12 s on one CPU core),
-#: so the budget is a few hundred gradients; on a rough objective a line search that needs more than
-#: eight halvings has found noise, not descent.
-SPEED_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-3, stationarity=1e-2, max_outer=4, max_inner=15,
-                                        penalty_initial=100.0, max_backtracks=8)
+@dataclasses.dataclass(frozen=True)
+class SpeedOptions:
+    """Settings of :func:`optimise`: one gradient is 15 rollouts of 5 700 contact steps (about 12 s on
+    one CPU core), so the budget is a few dozen gradients; on a rough objective a line search that needs
+    more than eight halvings has found noise, not descent.
+
+    Attributes:
+      max_outer: multiplier updates. max_inner: L-BFGS iterations per multiplier update.
+      penalty: rho of the augmented Lagrangian (the constraints are scaled to order one).
+      tolerance: largest scaled violation of a feasible gait.
+      stationarity: an inner loop ends when |gradient|_inf falls below this.
+      memory: L-BFGS memory. armijo: sufficient decrease. max_backtracks: halvings of a step at most.
+    """
+
+    max_outer: int = 4
+    max_inner: int = 15
+    penalty: float = 100.0
+    tolerance: float = 1e-3
+    stationarity: float = 1e-2
+    memory: int = 10
+    armijo: float = 1e-4
+    max_backtracks: int = 8
 
 
-def optimise(options: al.SolverOptions = SPEED_SOLVER_OPTIONS,
-             progress=None) -> dict:
-    """Optimises the gait from the default; returns the default's and the optimum's speed, the
-    optimal parameters, the solver status and its largest violation."""
+SPEED_OPTIONS = SpeedOptions()
+
+
+def augmented_lagrangian(objective, inequalities, multipliers, penalty):
+    """f + sum(max(0, z + rho g)^2 - z^2) / (2 rho) for inequalities g <= 0 with multipliers z >= 0
+    (Nocedal and Wright, Numerical Optimization, 2006, eq. 17.65)."""
+    shifted = jnp.maximum(0.0, multipliers + penalty * inequalities)
+    return objective + jnp.sum(shifted ** 2 - multipliers ** 2) / (2 * penalty)
+
+
+def _inner(value, value_and_grad, z, multipliers, options: SpeedOptions):
+    """L-BFGS (optax's direction) with a backtracking Armijo search on the augmented Lagrangian at fixed
+    multipliers; returns the last accepted point and the gradient evaluations spent."""
+    lbfgs = optax.scale_by_lbfgs(memory_size=options.memory)
+    state = lbfgs.init(z)
+    current, grad = value_and_grad(z, multipliers)
+    spent = 1
+    for _ in range(options.max_inner):
+        if float(jnp.max(jnp.abs(grad))) <= options.stationarity:
+            break
+        direction, state = lbfgs.update(grad, state, z)  # the inverse-Hessian estimate times the gradient
+        slope = -float(grad @ direction)
+        if slope >= 0:  # not a descent direction: the gradient's own
+            direction, slope = grad, -float(grad @ grad)
+        step = 1.0
+        for _ in range(options.max_backtracks):
+            trial = z - step * direction
+            if float(value(trial, multipliers)) <= float(current) + options.armijo * step * slope:
+                break
+            step *= 0.5
+        else:
+            break  # no decrease along the direction: noise, not descent
+        z = trial
+        current, grad = value_and_grad(z, multipliers)
+        spent += 1
+    return z, spent
+
+
+def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None) -> dict:
+    """min f(z) subject to g(z) <= 0 for ``evaluate(z, None) -> (f, h (empty), g)``, derivatives by
+    central differences of width :data:`DIFFERENCE_STEP`: ``options.max_outer`` rounds of an inner
+    L-BFGS solve of the augmented Lagrangian and the multiplier update z <- max(0, z + rho g).
+
+    Returns {"z", "cost", "start_cost" (f at z0), "violation" (largest scaled), "status" (converged: feasible within
+    ``options.tolerance`` with the multipliers settled; else iteration limit), "iterates" (z after
+    every outer iteration), "gradients"}. ``progress(outer, row)`` hears each outer iteration (row:
+    "cost", "violation", "gradients", each of shape (1,))."""
+    differenced = nlp.central_differences(evaluate, DIFFERENCE_STEP)
+
+    def merit(z, multipliers):
+        objective, _, inequalities = differenced(z, None)
+        return augmented_lagrangian(objective, inequalities, multipliers, options.penalty)
+
+    value, value_and_grad, outputs = jax.jit(merit), jax.jit(jax.value_and_grad(merit)), jax.jit(evaluate)
+    z = jnp.asarray(z0, dtype=jnp.result_type(float))
+    objective, _, inequalities = outputs(z, None)
+    start_cost = float(objective)
+    multipliers, gradients, status, iterates = jnp.zeros_like(inequalities), 0, nlp.ITERATION_LIMIT, []
+    violation = float(jnp.max(jnp.maximum(inequalities, 0.0)))
+    for outer in range(options.max_outer):
+        z, spent = _inner(value, value_and_grad, z, multipliers, options)
+        gradients += spent
+        objective, _, inequalities = outputs(z, None)
+        violation = float(jnp.max(jnp.maximum(inequalities, 0.0)))
+        updated = jnp.maximum(0.0, multipliers + options.penalty * inequalities)
+        settled = float(jnp.max(jnp.abs(updated - multipliers))) <= options.tolerance * options.penalty
+        multipliers = updated
+        iterates.append(np.asarray(z))
+        if progress:
+            progress(outer, {"cost": np.array([float(objective)]), "violation": np.array([violation]),
+                             "gradients": np.array([gradients])})
+        if violation <= options.tolerance and settled:
+            status = nlp.CONVERGED
+            break
+    return {"z": np.asarray(z), "cost": float(objective), "start_cost": start_cost, "violation": violation,
+            "status": status, "iterates": iterates, "gradients": gradients}
+
+
+def optimise(options: SpeedOptions = SPEED_OPTIONS, progress=None) -> dict:
+    """Optimises the gait from the default (:func:`minimise`); returns the default's and the optimum's
+    speed, the optimal parameters, the status, its largest scaled violation, every outer iterate (so a
+    caller can walk them all and keep the best verified one), the gradient count and the time."""
+    started = time.perf_counter()
     drive = donald.donald_drive()
     mj_model, model = differentiable_donald(drive)
     walk = donald.walker(mj_model, STEPS, DURATION)
@@ -143,18 +245,11 @@ def optimise(options: al.SolverOptions = SPEED_SOLVER_OPTIONS,
     def evaluate(z, _params):
         return speed_and_constraints(z, walk, model, gains, drive)
 
-    problem = nlp.ConstrainedProblem(evaluate).with_central_differences(DIFFERENCE_STEP)
-    z0 = jnp.ones((1, len(PARAMETERS)))
-    result = al.solve(problem, z0, jnp.zeros(1), options, progress=progress)
-    start_speed = -float(jax.jit(evaluate)(z0[0], None)[0]) * 0.01
-    z = jnp.asarray(result.x[0])
+    result = minimise(evaluate, jnp.ones(len(PARAMETERS)), options, progress)
     as_gait = lambda z_: {name: float(getattr(gait_from_vector(jnp.asarray(z_)), name))  # noqa: E731
                           for name in PARAMETERS}
-    return {"status": result.status[0], "speed_mps": -float(result.cost[0]) * 0.01,
-            "default_speed_mps": start_speed, "max_scaled_violation": float(result.violation[0]),
-            "gait": as_gait(z),
-            # every outer iterate, so a caller can walk them all and keep the best verified one
-            "iterates": [{"outer_iteration": k + 1, "speed_mps": -0.01 * float(row["cost"][0]),
-                          "max_scaled_violation": float(row["violation"][0]), "gait": as_gait(row["x"][0])}
-                         for k, row in enumerate(result.history)],
-            "gradients": int(result.gradients[0]), "wall_time_s": result.wall_time_s}
+    return {"status": result["status"], "speed_mps": -result["cost"] * 0.01,
+            "default_speed_mps": -result["start_cost"] * 0.01,
+            "max_scaled_violation": result["violation"], "gait": as_gait(result["z"]),
+            "iterates": [{"outer_iteration": k + 1, "gait": as_gait(z)} for k, z in enumerate(result["iterates"])],
+            "gradients": result["gradients"], "wall_time_s": time.perf_counter() - started}

@@ -52,10 +52,12 @@ class GaitSettings:
       dynamics: "chain" (the closed-form planar-chain dynamics of :mod:`biped_jax.dynamics.planar_chain`, equal
         to MJX's to rounding and several times faster to compile and differentiate) or "mjx" (MJX's
         forward pipeline). The touchdown impact map is MJX's in both.
-      segments: shooting segments of the stance angle's zero dynamics, dividing ``spans``: 1 is single
-        shooting from the start state; more start each segment (a run of spans / segments knot
-        spans) from its own stance state, a decision variable, with continuity as equality
-        constraints (multiple shooting: the unstable stance pendulum cannot drift over a segment).
+      segments: shooting segments of the stance angle's zero dynamics, dividing ``spans``; None (the
+        default) shoots one per knot span. 1 is single shooting from the start state; more start each
+        segment (a run of spans / segments knot spans) from its own stance state, a decision
+        variable, with continuity as equality constraints (multiple shooting: the unstable stance
+        pendulum cannot drift over a segment, and the interior point's derivatives split by segment,
+        :mod:`biped_jax.gait.segmented`, several times cheaper than over the whole step).
 
     Raises ValueError naming the field, its value and the allowed range.
     """
@@ -68,9 +70,11 @@ class GaitSettings:
     friction: float = 0.8
     knee_max: float = 2.6
     dynamics: str = "chain"
-    segments: int = 1
+    segments: int | None = None
 
     def __post_init__(self):
+        if self.segments is None and not isinstance(self.spans, bool) and isinstance(self.spans, int):
+            object.__setattr__(self, "segments", self.spans)  # one shooting segment per knot span
         if self.dynamics not in DYNAMICS:
             raise ValueError(f"GaitSettings.dynamics must be one of {DYNAMICS}, got {self.dynamics!r}")
         checks.gait_space(self.spans, self.degree, self.substeps, prefix="GaitSettings.")

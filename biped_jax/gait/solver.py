@@ -1,5 +1,5 @@
-"""Solving gait problems: many models in one batch (the batched interior point, SLSQP one after
-another, or the batched augmented Lagrangian), each solution re-simulated and judged
+"""Solving gait problems: many models in one batch of the batched interior point
+(:mod:`biped_jax.optim.interior_point`), each solution re-simulated and judged
 (:mod:`biped_jax.gait.verdict`: violations in own units, the refinement check, the status) by one
 vmapped program per grid for the whole batch; the smallest power limit at which a gait walks.
 """
@@ -18,29 +18,17 @@ from biped_jax import checks
 from biped_jax.dynamics import hybrid_step as hs
 from biped_jax.gait import problem as gait
 from biped_jax.gait import segmented, verdict
-from biped_jax.optim import augmented_lagrangian as al
 from biped_jax.optim import nlp
-from biped_jax.optim import coloured
 from biped_jax.optim import exact_derivatives
 from biped_jax.optim import interior_point as ip
-from biped_jax.optim import limit_minimisation
-from biped_jax.optim import sqp
 from biped_jax.robots.specs import PLANAR_SPECS
 
 
-#: The scale of M_W / M_W0 in SLSQP's variables when minimising the power limit (the gait variables are
-#: scaled by the Gauss-Newton matrix of J at the start): the first step lowers the limit by about 1 %,
-#: then the quasi-Newton matrix takes over (M1 from 20 W in 16 spans: 5.9 W after 10 iterations,
-#: 1.7 W after 140). Not tuned further.
-POWER_LIMIT_STEP = 0.1
-#: The gait variables' Gauss-Newton regularisation there when the options turn preconditioning off.
-SQP_PRECONDITION = sqp.SQPOptions.precondition
-
-
-#: Solver settings for the gait: scaled tolerance 1e-5 keeps every group below 1e-4 in its own unit
-#: (the scales in ``biped_jax.gait.problem`` are at most 10 own units per scaled unit).
-GAIT_SOLVER_OPTIONS = al.SolverOptions(tolerance=1e-5, stationarity=1e-2, max_outer=25, max_inner=500,
-                                       penalty_initial=10.0, penalty_max=1e6)
+#: The interior point's settings for a gait solved from a heuristic start (IPOPT's defaults; a warm
+#: start near an optimum may begin from a smaller barrier parameter, ``mu_initial``): a KKT error of
+#: 1e-8 in scaled units keeps every constraint group far below 1e-4 in its own unit (the scales in
+#: :mod:`biped_jax.gait.problem` are at most 10 own units per scaled unit).
+GAIT_SOLVER_OPTIONS = ip.InteriorPointOptions()
 
 
 #: The smallest power limit by the interior point (:meth:`GaitSolver.minimise_power_limit`): stages of
@@ -91,9 +79,9 @@ class GaitSolution:
         (mixed units; each is checked against the tolerance in its own unit).
       stationarity: |grad of the Lagrangian|_inf (scaled). outer_iterations, gradients: counts.
       wall_time_s: the batch's solve time. x: the decision vector. trajectory: the simulated step.
-      history: per outer iteration: cost, scaled violation, penalty, gradients.
-      multipliers_eq, multipliers_in: the solver's final multiplier estimates of the scaled
-        constraints (see :func:`biped_jax.optim.augmented_lagrangian.optimal_value_gradient`).
+      history: per block of the interior point's iterations: cost, scaled violation, KKT error, gradients.
+      multipliers_eq, multipliers_in: the solver's multipliers of the scaled constraints at the
+        optimum (see :func:`biped_jax.optim.nlp.optimal_value_gradient`).
       refinement: the refinement check (:func:`~biped_jax.gait.verdict.refinement_records`): J and
         violations on a grid ``gait.REFINEMENT`` times finer, the same decision vector.
       starts: from :func:`solve_multistart`, every start's family, status and cost (the spread over
@@ -134,6 +122,13 @@ def _check_weights(energy_weights) -> tuple[float, ...]:
     return tuple(float(w) for w in weights)
 
 
+def _check_options(options) -> None:
+    """TypeError naming the type unless ``options`` are the interior point's."""
+    if not isinstance(options, ip.InteriorPointOptions):
+        raise TypeError("options must be biped_jax.optim.interior_point.InteriorPointOptions, got "
+                        f"{type(options).__name__}")
+
+
 class GaitSolver:
     """Compiles once per :class:`~biped_jax.gait.problem.GaitSettings` and solves batches of models.
 
@@ -146,13 +141,11 @@ class GaitSolver:
     """
 
     def __init__(self, settings: gait.GaitSettings = gait.GaitSettings(),
-                 options: al.SolverOptions | sqp.SQPOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
+                 options: ip.InteriorPointOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
                  require_refinement: bool = True, check_refinement: bool = True):
         if not isinstance(settings, gait.GaitSettings):
             raise TypeError(f"settings must be a GaitSettings, got {type(settings).__name__}")
-        if not isinstance(options, (ip.InteriorPointOptions, al.SolverOptions, sqp.SQPOptions)):
-            raise TypeError("options must be InteriorPointOptions, SolverOptions or SQPOptions, got "
-                            f"{type(options).__name__}")
+        _check_options(options)
         self.settings, self.options = settings, options
         self.require_refinement = require_refinement and check_refinement
         self.check_refinement = check_refinement
@@ -178,8 +171,6 @@ class GaitSolver:
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
         self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
 
-        self.compiled = al.compile_problem(self.problem)
-        self._compiled_sqp = {}  # SLSQP's value and derivatives, compiled on first use (per step)
         self.refined_settings = gait.refined(settings)
         # the report's rollouts and verdict numbers, a batch per call: one program per grid and report_batch
         self._checks = {grid: jax.jit(jax.vmap(functools.partial(verdict.rollout_check, biped=biped, settings=grid)))
@@ -188,39 +179,17 @@ class GaitSolver:
             gait.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
 
     def with_options(self, **changes) -> "GaitSolver":
-        """A solver sharing this one's compiled functions with other solver options (of the same method)."""
+        """A solver sharing this one's compiled functions with other interior-point options."""
         return self.using(dataclasses.replace(self.options, **changes))
 
-    def using(self, options: ip.InteriorPointOptions | al.SolverOptions | sqp.SQPOptions) -> "GaitSolver":
-        """A solver sharing this one's compiled functions with ``options``; their type is the method:
-        :class:`~biped_jax.optim.interior_point.InteriorPointOptions` for the batched interior point,
-        :class:`~biped_jax.optim.augmented_lagrangian.SolverOptions` for the batched augmented Lagrangian,
-        :class:`~biped_jax.optim.sqp.SQPOptions` for SLSQP (one problem after another)."""
-        if not isinstance(options, (ip.InteriorPointOptions, al.SolverOptions, sqp.SQPOptions)):
-            raise TypeError("options must be InteriorPointOptions, SolverOptions or SQPOptions, got "
-                            f"{type(options).__name__}")
+    def using(self, options: ip.InteriorPointOptions) -> "GaitSolver":
+        """A solver sharing this one's compiled functions with ``options`` (options that change only the
+        iteration count or the barrier's start share the compiled iterations too)."""
+        _check_options(options)
         other = object.__new__(GaitSolver)
         other.__dict__.update(self.__dict__)
         other.options = options
         return other
-
-    def _sqp_compiled(self, options: sqp.SQPOptions) -> coloured.CompiledSQP:
-        """SLSQP's compiled functions of the gait problem (the power-limit minimisation runs on them:
-        :class:`~biped_jax.optim.limit_minimisation.LimitMinimisation`)."""
-        key = (options.step, options.sparse)
-        if key not in self._compiled_sqp:
-            self._compiled_sqp[key] = coloured.compile_problem(self.problem, options.step, options.sparse)
-        return self._compiled_sqp[key]
-
-    @staticmethod
-    def _sqp_progress(progress, names):
-        if not progress:
-            return None
-
-        def report(b, i, f, v):
-            progress(i, {"problem": b, "name": names[b], "problems": len(names),
-                         "cost": np.array([f]), "violation": np.array([v])})
-        return report
 
     def _interior_point(self, kind: str, x0, batch, progress, multipliers=None, options=None) -> nlp.SolveResult:
         """The batched interior point on the energy problem (``kind`` "energy") or the smallest power
@@ -243,15 +212,6 @@ class GaitSolver:
             self._interior[key] = ip.compile_problem(problem, options)
         return ip.solve(problem, x0, batch, options, structure=structure,
                         compiled=self._interior[key], multipliers=multipliers, progress=progress)
-
-    def _solve_batch(self, x0, batch, progress, names, multipliers=None):
-        if isinstance(self.options, ip.InteriorPointOptions):
-            return self._interior_point("energy", x0, batch, progress, multipliers)
-        if isinstance(self.options, sqp.SQPOptions):
-            return sqp.solve(self.problem, x0, batch, self.options,
-                             compiled=self._sqp_compiled(self.options),
-                             progress=self._sqp_progress(progress, names))
-        return al.solve(self.problem, x0, batch, self.options, compiled=self.compiled, progress=progress)
 
     def check(self, x, models: gait.GaitModel, refined: bool = False) -> verdict.GridCheck:
         """The batch ``x`` (B, n) re-simulated on the solve grid (``refined``: the refinement check's,
@@ -299,24 +259,22 @@ class GaitSolver:
 
     def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None, multipliers=None) -> list[GaitSolution]:
-        """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts, and with the
-        interior point so do ``multipliers`` (equalities (B, m_h), inequalities (B, m_g): those of
-        solutions of the same space, such as a neighbouring problem's). With SQP options ``progress``
-        gets (iteration, {"problem": b, "cost": (1,), "violation": (1,)}) per SLSQP iteration of problem
-        b (also "name" and "problems", the batch size); with the interior point (iteration, row of (B,)
-        arrays: "cost", "violation", "error", "done") after every block of iterations."""
+        """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts, and so do
+        ``multipliers`` (equalities (B, m_h), inequalities (B, m_g): those of solutions of the same
+        space, such as a neighbouring problem's). ``progress`` gets (iteration, row of (B,) arrays:
+        "cost", "violation", "error", "done") after every block of iterations."""
         x0 = self.check_batch(names, models, x0, multipliers)
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        return self._report(names, batch, self._solve_batch(x0, batch, progress, names, multipliers))
+        return self._report(names, batch, self._interior_point("energy", x0, batch, progress, multipliers))
 
     def minimise_power_limit(self, names: list[str], models: list[gait.GaitModel], x0,
                              progress: Callable[[int, dict], None] | None = None,
                              energy_weights: tuple = LIMIT_ENERGY_WEIGHTS) -> list[GaitSolution]:
         """The smallest power limit M_W at which each model walks: the interior point (all models in one
-        batch) or SLSQP on (x, t = M_W / M_W0) minimising the limit (the epigraph form of the smallest
+        batch) on (x, t = M_W / M_W0) minimising the limit (the epigraph form of the smallest
         largest joint power |qdot u| over feasible gaits), from ``x0`` (B, n), gaits feasible at the
-        models' own limits M_W0. The interior point runs :data:`LIMIT_ENERGY_WEIGHTS` (or
+        models' own limits M_W0. It runs :data:`LIMIT_ENERGY_WEIGHTS` (or
         ``energy_weights``: non-negative, the last normally 0) as a continuation: min t + (w / J0) J
         for each weight w in turn; with a last weight of 0 a converged result is a KKT point of the
         epigraph form min t, its multipliers those of that problem.
@@ -326,10 +284,7 @@ class GaitSolver:
         ``refinement["solve_grid_limit_W"]``) and the gait's largest joint power on the refinement
         grid (the former alone for a solver without the refinement check), so that its status reads
         whether it is feasible (and grid independent) there; ``cost``
-        is that gait's J (not minimised); the multipliers are those of the limit problem. A solver with
-        augmented-Lagrangian options raises TypeError (``solver.using(InteriorPointOptions(...))`` makes
-        one sharing the compiled rollouts)."""
-        options = self.options
+        is that gait's J (not minimised); the multipliers are those of the limit problem."""
         if x0 is None:
             raise ValueError("x0 is None: minimise_power_limit starts from gaits feasible at the models' "
                              "own limits, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
@@ -337,13 +292,7 @@ class GaitSolver:
         weights = _check_weights(energy_weights)
         batch = stack_tree(models)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
-        if isinstance(options, ip.InteriorPointOptions):
-            result = self._limit_continuation(start, batch, progress, weights)
-        elif isinstance(options, sqp.SQPOptions):
-            result = self._slsqp_power_limit(names, models, batch, x0, start, progress)
-        else:
-            raise TypeError("minimise_power_limit runs the interior point or SLSQP: use solver.using("
-                            f"InteriorPointOptions(...)), got options of type {type(options).__name__}")
+        result = self._limit_continuation(start, batch, progress, weights)
         x = result.x[:, :-1]
         solve_grid = result.x[:, -1] * np.asarray(batch.power_limit)
         limits = solve_grid
@@ -379,23 +328,6 @@ class GaitSolver:
             last, outer_iterations=sum(r.outer_iterations for r in stages),
             gradients=sum(r.gradients for r in stages), wall_time_s=sum(r.wall_time_s for r in stages),
             history=[row for r in stages for row in r.history])
-
-    def _slsqp_power_limit(self, names, models, batch, x0, start, progress) -> nlp.SolveResult:
-        """SLSQP on (x, M_W / M_W0), each problem preconditioned by the Gauss-Newton matrix of its J at
-        x0 and the limit scaled by :data:`POWER_LIMIT_STEP`."""
-        options = self.options
-        energy = self._sqp_compiled(options)
-        scales = []
-        for b in range(len(models)):
-            jac_r = np.asarray(energy.derivatives(jnp.asarray(x0[b]), jax.tree.map(lambda a: a[b], batch))[6])
-            scale = np.zeros((x0.shape[1] + 1,) * 2)
-            scale[:-1, :-1] = sqp.gauss_newton_scale(jac_r, options.precondition or SQP_PRECONDITION)
-            scale[-1, -1] = POWER_LIMIT_STEP
-            scales.append(scale)
-        # the limit as a variable on the energy problem's compiled functions: M_W = t M_W0 (t a float)
-        limit = limit_minimisation.LimitMinimisation(energy, gait.with_limit_fraction)
-        return sqp.solve(self.problem, start, batch, options, compiled=limit,
-                         progress=self._sqp_progress(progress, names), scales=np.stack(scales))
 
     def _report(self, names: list[str], batch: gait.GaitModel, result: nlp.SolveResult,
                 cost_of_rollout: bool = False) -> list[GaitSolution]:

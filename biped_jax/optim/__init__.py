@@ -1,2 +1,2 @@
-"""The optimisers: the batched interior point (exact autodiff derivatives), the batched augmented
-Lagrangian and SLSQP."""
+"""The optimiser: the batched interior point with exact autodiff derivatives (split by segment or
+coloured by the problem's sparsity), and the nonlinear program it takes."""

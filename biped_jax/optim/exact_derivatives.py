@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.optim import coloured, local_derivatives, nlp
+from biped_jax.optim import local_derivatives, nlp, sparsity
 
 
 @jax.tree_util.register_dataclass
@@ -58,11 +58,11 @@ def dense_structure(size: int, constraints: int) -> Structure:
                      hessian_pattern=jnp.ones((size, size), bool))
 
 
-def probe_structure(problem: nlp.ConstrainedProblem, x, params, padding: int = coloured.COLOUR_PADDING,
+def probe_structure(problem: nlp.ConstrainedProblem, x, params, padding: int = sparsity.COLOUR_PADDING,
                     linear_columns=()) -> Structure:
     """The colouring of ``problem`` at one point ``x`` (n,) with one problem's ``params``: which rows
     each column reaches, probed by perturbing each column alone (at x and at a second, random point;
-    :func:`biped_jax.optim.coloured.sparsity_pattern`), the Hessian's pattern from it (rows of the
+    :func:`biped_jax.optim.sparsity.sparsity_pattern`), the Hessian's pattern from it (rows of the
     residuals r, h and g: the Hessian of r . r, h_k and g_k only couples columns that meet in a row),
     its columns coloured greedily, the colour count padded to a multiple of ``padding`` so that
     problems whose patterns differ slightly still share one compiled program. ``linear_columns``: the
@@ -70,8 +70,8 @@ def probe_structure(problem: nlp.ConstrainedProblem, x, params, padding: int = c
     factor), whose Hessian rows and columns are zero; a column that reaches every row would otherwise
     make the Hessian's pattern dense."""
     has_residuals = problem.residuals is not None
-    outputs = jax.jit(functools.partial(coloured._outputs, problem))
-    pattern = coloured.sparsity_pattern(outputs, np.asarray(x, dtype=float), params, has_residuals)
+    outputs = jax.jit(functools.partial(sparsity.problem_outputs, problem))
+    pattern = sparsity.sparsity_pattern(outputs, np.asarray(x, dtype=float), params, has_residuals)
     rows = outputs(jnp.asarray(x), params)
     r_size, h_size, g_size = np.size(rows[3]), np.size(rows[1]), np.size(rows[2])
     # pattern rows: r, h, g (then f for a problem without residuals)
@@ -82,7 +82,7 @@ def probe_structure(problem: nlp.ConstrainedProblem, x, params, padding: int = c
     hessian &= ~linear[:, None] & ~linear[None, :]
     # columns of one colour meet in no row of the Hessian's pattern (its recovery) nor of the
     # Jacobian's (which the Hessian's implies except for the linear columns)
-    colour = coloured.column_colours(np.concatenate([hessian, pattern]))
+    colour = sparsity.column_colours(np.concatenate([hessian, pattern]))
     count = min(-(-(colour.max(initial=-1) + 1) // padding) * padding, pattern.shape[1])
     directions = (np.arange(count)[:, None] == colour[None]).astype(float)
     return Structure(directions=jnp.asarray(directions), colour=jnp.asarray(colour),

@@ -670,7 +670,7 @@ def _solve_batch(compiled, options, structure, x0, params, multipliers, progress
         state = compiled.block(structure, params, state, jnp.asarray(until, jnp.int32))
         row = {"cost": np.asarray(state.f), "violation": np.asarray(jax.vmap(violation)(state.h, state.g)),
                "error": np.asarray(state.error), "mu": np.asarray(state.mu),
-               "gradients": np.asarray(state.evaluations), "penalty": np.zeros(batch),
+               "gradients": np.asarray(state.evaluations),
                "stationarity": np.asarray(state.stationarity), "done": np.asarray(state.code) != _RUNNING}
         row = {k: v[:batch] for k, v in row.items()}
         history.append(row)

@@ -1,4 +1,4 @@
-"""The nonlinear program both solvers take and what they return: a batchable
+"""The nonlinear program the solvers take and what they return: a batchable
 :class:`ConstrainedProblem` (f, h, g of x and per-problem data), its statuses, a :class:`SolveResult`,
 the scaled violation, derivatives by central differences, and the optimal value's sensitivity to the
 problem's data (envelope theorem).
@@ -6,8 +6,8 @@ problem's data (envelope theorem).
     minimise f(x; p)  subject to  h(x; p) = 0,  g(x; p) <= 0,
 
 x of shape (n,), p a pytree of per-problem data; the constraints scaled to order one by the caller.
-Solved by :mod:`biped_jax.optim.interior_point` (batched, exact derivatives),
-:mod:`biped_jax.optim.augmented_lagrangian` (batched) and :mod:`biped_jax.optim.sqp`.
+Solved by :mod:`biped_jax.optim.interior_point` (batched, exact derivatives); DONALD's speed
+optimisation (:mod:`biped_jax.donald.speed`) takes its central differences.
 """
 
 from __future__ import annotations
@@ -19,11 +19,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-#: A solve's outcomes (both solvers; the gait's verdict adds "grid dependent").
+#: A solve's outcomes (the gait's verdict adds "grid dependent").
 CONVERGED, INFEASIBLE, ITERATION_LIMIT, DIVERGED = "converged", "infeasible", "iteration limit", "diverged"
-#: At the penalty cap with the violation no longer falling, but too small to call the problem
-#: infeasible (below the solver options' ``infeasible_above``): the inner solver stalled near a feasible
-#: point, which says nothing about whether one exists.
+#: No step accepted for several iterations with a violation too small to call the problem infeasible
+#: (below the solver options' ``infeasible_above``): the solver stalled near a feasible point, which
+#: says nothing about whether one exists.
 STALLED = "stalled"
 
 
@@ -35,9 +35,8 @@ class ConstrainedProblem:
       evaluate: ``(x, params) -> (f, h, g)``, the objective (scalar), the equalities and the
         inequalities (1-D arrays, possibly empty) from one evaluation, so that an expensive simulation
         behind all three runs once.
-      residuals: optional ``(x, params) -> (r, h, g)`` with f = r . r. When given, each inner problem
-        is preconditioned by the Gauss-Newton matrix of the augmented Lagrangian (a change of
-        variables x = x_k + P z with P^T H P = I), which L-BFGS then sees as well-conditioned.
+      residuals: optional ``(x, params) -> (r, h, g)`` with f = r . r (a least-squares objective; the
+        sparsity probe then reads r's rows, :mod:`biped_jax.optim.sparsity`).
       local: optional :class:`~biped_jax.optim.local_derivatives.LocalProblem`, the same rows split by
         segment: the interior point's exact derivatives then cost a segment's columns
         (:func:`biped_jax.optim.exact_derivatives.derivatives`).
@@ -106,12 +105,12 @@ class SolveResult:
     Attributes:
       x: solution, (B, n). cost: f, (B,). equalities, inequalities: h and g at x (scaled), (B, m).
       violation: largest scaled violation, (B,). stationarity: |grad Lagrangian|_inf / max(1, |f|), (B,).
-      status: list of B strings. outer_iterations, gradients: counts, (B,). wall_time_s: float.
-      multipliers_eq, multipliers_in: the final multiplier estimates of h and g, (B, m) each (the
-        first-order estimates lam + rho c(x) of the last update: at a KKT point, the sensitivity of the
-        optimal f to the problem data, see :func:`optimal_value_gradient`).
-      history: per outer iteration, a dict of (B,) arrays: cost, violation, penalty, gradients,
-        stationarity, and the iterate x (B, n) (lets a caller checkpoint a long solve).
+      status: list of B strings. outer_iterations (the interior point's iterations), gradients
+        (derivative evaluations): counts, (B,). wall_time_s: float.
+      multipliers_eq, multipliers_in: the multipliers of h and g, (B, m) each (at a KKT point, the
+        sensitivity of the optimal f to the problem data, see :func:`optimal_value_gradient`).
+      history: per block of iterations, a dict of (B,) arrays: cost, violation, KKT error, barrier
+        parameter, gradients, stationarity, done; the last row also the iterate x (B, n).
     """
 
     x: np.ndarray

@@ -1,6 +1,5 @@
-"""The co-design studies of ``biped-jax codesign``: designs in chunks of 16 (with the batched augmented
-Lagrangian one compiled program per chunk; with SLSQP, the default, one design after another on the
-same compiled programs), every solve warm-started from the paper design's gait.
+"""The co-design studies of ``biped-jax codesign``: designs in batches of 16 (one compiled program of the
+batched interior point for every batch), every solve warm-started from the paper design's gait.
 
 (a) peak joint power and Joule energy per metre against total mass (8-24 kg) at 0.417 and 0.555 m/s,
     with fitted power-law exponents; (b) the highest feasible speed against the gear ratio for the 42 V
@@ -21,7 +20,7 @@ import numpy as np
 from biped_jax.codesign import problem as codesign
 from biped_jax.drives import model as drives
 from biped_jax.gait import problem as gait
-from biped_jax.gait.solver import GAIT_SOLVER_OPTIONS, GaitSolver
+from biped_jax.gait.solver import GaitSolver
 from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
@@ -33,18 +32,12 @@ POWER_LIMIT = 20.0  # W, the RE 25's rating and the paper's M_W for the 12 kg ro
 #: The study's windings: the paper's three (estimates) and the datasheet 24 V winding; the paper's
 #: 42 V first, so that its gait (first batch, heuristic starts) warm-starts the second batch.
 WINDINGS = ("RE25-42V", "RE25-118752", "RE25-30V", "RE25-48V")
-#: Iteration budget of the studies' solves with the augmented Lagrangian (``--solver al``): a batch runs
-#: until its slowest design stops, so designs without a gait would otherwise spend the full default
-#: budget; those hitting this one report "iteration limit". SLSQP's is ``codesign.SOLVER_OPTIONS``.
-STUDY_OPTIONS = dict(max_outer=15, max_inner=250)
 #: The batched interior point's settings for the co-design batches (every design of a batch in one
 #: compiled program).
 IP_OPTIONS = ip.InteriorPointOptions()
 #: Its settings for batches warm-started from a solved gait (every batch but the reference's): from a
 #: smaller barrier parameter, as the paper study's warm stages (the same compiled iterations).
-IP_WARM_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-3)
-#: The co-design studies' solvers (``run_codesign``'s ``solver_name``).
-SOLVERS = ("ip", "sqp", "al")
+IP_WARM_OPTIONS = codesign.SOLVER_OPTIONS
 #: Catalogue ratios of the Pareto study (2- and 3-stage GP 32 A).
 PARETO_GEARHEADS = ("GP32A-18", "GP32A-23", "GP32A-33", "GP32A-51", "GP32A-66.22", "GP32A-86",
                     "GP32A-111", "GP32A-159")
@@ -56,8 +49,8 @@ SPEED_GEARHEADS = ("GP32A-14", "GP32A-18", "GP32A-21", "GP32A-23", "GP32A-28", "
 
 def _cold(solver: GaitSolver) -> GaitSolver:
     """The solver for a solve from the heuristic start: the interior point from its cold barrier
-    parameter (:data:`IP_OPTIONS`), any other method as it is."""
-    return solver.using(IP_OPTIONS) if isinstance(solver.options, ip.InteriorPointOptions) else solver
+    parameter (:data:`IP_OPTIONS`)."""
+    return solver.using(IP_OPTIONS)
 
 
 def _converged(solution) -> bool:
@@ -75,8 +68,8 @@ def power_law_exponent(mass, value) -> float:
 def mass_scaling(solver: GaitSolver, say) -> dict:
     """Study (a): the paper's drive (42 V, 66:1) on robots of 8-24 kg (structure scaled), no power and
     no voltage limit, so that the requirement itself is measured. Per speed, the 12 kg robot is solved
-    from the heuristic start first and warm-starts every mass (from 0.555 m/s's gait, SLSQP did not
-    find the 0.417 m/s gaits in 300 iterations: measured 2026-12-03)."""
+    from the heuristic start first and warm-starts every mass (a gait of the other speed is a worse
+    start: from 0.555 m/s's, SLSQP did not find the 0.417 m/s gaits in 300 iterations)."""
     designs, speeds, starts = [], [], []
     for speed in SPEEDS:
         say(f"(a) the paper's 12 kg robot at {speed} m/s from the heuristic start")
@@ -193,29 +186,23 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
 
 
 def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dynamics="chain"), iterations: int = 5,
-                 progress: Callable[[str], None] | None = None, resume: bool = False,
-                 solver_name: str = "sqp") -> dict:
+                 progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
     """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png.
-    ``solver_name``: "sqp" (SLSQP, ``codesign.SOLVER_OPTIONS``, the default), "ip" (the batched interior
-    point, :data:`IP_OPTIONS` for the reference gait and :data:`IP_WARM_OPTIONS` otherwise; single-shot
-    settings are shot in a segment per knot span, its transcription) or "al" (the batched augmented
-    Lagrangian, :data:`STUDY_OPTIONS`).
+    The batched interior point solves every batch: :data:`IP_OPTIONS` for the reference gait,
+    :data:`IP_WARM_OPTIONS` otherwise; single-shot settings are shot in a segment per knot span.
     Each finished study is kept in ``out/stages`` (:func:`biped_jax.report.outputs.stage`); ``resume``
     takes those written with the same settings instead of solving them again."""
     from biped_jax.codesign import plots as codesign_plots
 
-    if solver_name not in SOLVERS:
-        raise ValueError(f"solver must be one of {SOLVERS}, got {solver_name!r}")
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
-    options = {"ip": IP_WARM_OPTIONS, "sqp": codesign.SOLVER_OPTIONS,
-               "al": dataclasses.replace(GAIT_SOLVER_OPTIONS, **STUDY_OPTIONS)}[solver_name]
-    if solver_name == "ip" and settings.segments == 1:
+    options = IP_WARM_OPTIONS
+    if settings.segments == 1:
         settings = dataclasses.replace(settings, segments=settings.spans)
     solver = GaitSolver(settings, options)
     results = {"settings": {"spans": settings.spans, "substeps": settings.substeps, "steps": settings.steps,
                             "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,
-                            "dynamics": settings.dynamics, "solver": solver_name}}
+                            "dynamics": settings.dynamics, "solver": "interior point"}}
     save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731
     key = {"settings": dataclasses.asdict(settings), "iterations": iterations, "options": dataclasses.asdict(options)}
     kept = lambda name, compute: outputs.stage(out, f"codesign_{name}", key, compute, resume, say)  # noqa: E731

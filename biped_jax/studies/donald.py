@@ -160,7 +160,8 @@ def run_faster(out: Path, steps: int = 8, progress: Callable[[str], None] | None
     ``resume`` takes them back (:func:`biped_jax.report.outputs.stage`)."""
     from biped_jax.donald import speed as donald_speed
     say = progress or (lambda message: None)
-    say("optimising DONALD's gait for speed (single shooting through MJX contact, augmented Lagrangian)")
+    say("optimising DONALD's gait for speed (single shooting through MJX contact, an augmented Lagrangian "
+        "over optax's L-BFGS)")
     key = {"steps": steps}
     result = outputs.stage(out, "donald_speed_optimisation", key, lambda: donald_speed.optimise(
         progress=lambda i, row: say(

@@ -19,7 +19,6 @@ from biped_jax.gait import verdict
 from biped_jax.gait.solver import LIMIT_ENERGY_WEIGHTS, GaitSolution, GaitSolver
 from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
-from biped_jax.optim import sqp
 from biped_jax.report import outputs
 
 
@@ -49,7 +48,7 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
                          progress: Callable[[int, dict], None] | None = None,
                          coarse: GaitSolver | None = None) -> list[dict]:
     """The smallest power limit M_W per model (all models in one call): the limit itself minimised over
-    the gait (:meth:`GaitSolver.minimise_power_limit`; the interior point's continuation, or SLSQP),
+    the gait (:meth:`GaitSolver.minimise_power_limit`, the interior point's continuation),
     started from each model's converged gait at its own limit (``solutions[b]`` solved for
     ``models[b]``); with ``coarse``, first in its space (the gaits carried there by least squares, the
     whole continuation of :data:`~biped_jax.gait.solver.LIMIT_ENERGY_WEIGHTS`), then from there in
@@ -128,21 +127,6 @@ QUICK_FAMILIES = (gait.START_FAMILIES[1], gait.IMPACT_FAMILIES[0], gait.IMPACT_F
 QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start families; coarse, not the "
                "study's result")
 
-#: SLSQP in the coarse space (choosing the start per model) and in the study's space, there on a
-#: working set of the inequality rows (:attr:`biped_jax.optim.sqp.SQPOptions.working_margin`: an iteration
-#: costs half; measured 2026-12-03 the same iterates from the coarse optima, M4 at 20 W from its 40 W
-#: gait in 253 iterations instead of 568, J 6.97807 instead of 6.97814).
-COARSE_SQP_OPTIONS = sqp.SQPOptions(max_iterations=200)
-WORKING_MARGIN = 1.5
-SQP_OPTIONS = sqp.SQPOptions(working_margin=WORKING_MARGIN)
-#: SLSQP minimising the power limit (:func:`minimal_power_limits`): in the coarse space to convergence
-#: (160-210 iterations, about 15 s a model); in the study's space 100 iterations. There SLSQP does not
-#: converge (measured 2026-12-02 in 48 spans, 4 x 400 iterations, 18 min: every model at the cap, the
-#: best feasible limits 1.43 / 2.33 / 2.17 / 3.47 W; after 100 iterations within 1-4 % of those on the
-#: solve grid), so the limit reported is an upper bound either way, and the study takes the shorter stage.
-POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=400)
-FINE_POWER_SQP_OPTIONS = sqp.SQPOptions(max_iterations=100, working_margin=WORKING_MARGIN)
-
 #: The batched interior point (:mod:`biped_jax.optim.interior_point`) in every stage: from the heuristic
 #: starts a cold start (mu = 0.1), and warm from a nearby optimum (the coarse space's carried into the
 #: study's, the paper's limit's at 20 W, a gait at its own limit for the smallest limit) from mu = 1e-3:
@@ -163,20 +147,15 @@ IP_POWER_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-5, max_iterations=150)
 #: (0.001, 0) had not converged after 70 iterations of its first stage.
 STUDY_LIMIT_WEIGHTS = (0.01, 0.001, 0.0)
 
-#: The study's solvers: "ip" (the batched interior point), "sqp" (SLSQP) or "al" (the batched augmented
-#: Lagrangian of the first two generations, kept for comparison).
-METHODS = ("ip", "sqp", "al")
-
 
 @dataclasses.dataclass(frozen=True)
 class StudySolvers:
-    """The study's solvers of one method, sharing compiled programs where they share a space.
+    """The study's solvers, sharing compiled programs where they share a space.
 
     Attributes:
-      fine: in the study's space (every reported gait).
+      fine: in the study's space (every reported gait), warm-started.
       coarse: in the 4x coarser space, choosing each model's start (no refinement check).
-      power, coarse_power: ``fine`` and ``coarse`` with SLSQP's options for the smallest power limit
-        (either method).
+      power, coarse_power: ``fine`` and ``coarse`` with the options of the smallest power limit.
       families: the heuristic start families solved in the coarse space.
     """
 
@@ -187,26 +166,17 @@ class StudySolvers:
     families: tuple
 
 
-def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS, method: str = "sqp") -> StudySolvers:
-    """The solvers of :func:`run_study` (and of ``benchmarks/vs_collocation.py``) for ``method``
-    (one of :data:`METHODS`); raises ValueError naming another."""
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    fine = GaitSolver(settings)
+def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS) -> StudySolvers:
+    """The solvers of :func:`run_study` (and of ``benchmarks/vs_collocation.py``) in ``settings``' space
+    and its 4x coarser one."""
+    fine = GaitSolver(settings, IP_WARM_OPTIONS)
     # the coarse stage only chooses starts: no refinement check, so its refined rollout is never compiled
-    coarse = GaitSolver(multistart.coarse_settings(settings), check_refinement=False)
-    if method == "ip":
-        return StudySolvers(fine.using(IP_WARM_OPTIONS), coarse.using(IP_OPTIONS), fine.using(IP_POWER_OPTIONS),
-                            coarse.using(IP_WARM_OPTIONS), STUDY_FAMILIES)
-    if method == "sqp":
-        return StudySolvers(fine.using(SQP_OPTIONS), coarse.using(COARSE_SQP_OPTIONS),
-                            fine.using(FINE_POWER_SQP_OPTIONS), coarse.using(POWER_SQP_OPTIONS), STUDY_FAMILIES)
-    return StudySolvers(fine, coarse, fine.using(FINE_POWER_SQP_OPTIONS), coarse.using(POWER_SQP_OPTIONS),
-                        gait.START_FAMILIES)
+    coarse = GaitSolver(multistart.coarse_settings(settings), IP_OPTIONS, check_refinement=False)
+    return StudySolvers(fine, coarse, fine.using(IP_POWER_OPTIONS), coarse.using(IP_WARM_OPTIONS), STUDY_FAMILIES)
 
 
 def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
-              progress: Callable[..., None] | None = None, resume: bool = False, method: str = "sqp",
+              progress: Callable[..., None] | None = None, resume: bool = False,
               families: tuple | None = None) -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
     space: :func:`biped_jax.gait.solver.solve_multistart`), M1-M4 at 20 W (warm-started)
@@ -215,20 +185,20 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
     stage is kept in ``out/stages`` (:func:`biped_jax.report.outputs.stage`); ``resume`` takes the
     stages found there for these settings instead of solving them again. ``families`` replaces the
-    method's start families. ``progress(message, task=None)`` hears every iteration;
+    study's start families (:data:`STUDY_FAMILIES`). ``progress(message, task=None)`` hears every iteration;
     ``task`` = (stage, problems done, problems in the stage) counts the work
     (:func:`biped_jax.report.progress.live_progress`)."""
-    solvers = study_solvers(settings, method)
+    solvers = study_solvers(settings)
     solver, coarse, families = solvers.fine, solvers.coarse, families or solvers.families
     say = progress or (lambda message, task=None: None)
     out.mkdir(parents=True, exist_ok=True)
-    key = {"settings": dataclasses.asdict(settings), "method": method, "families": [f.name for f in families]}
+    key = {"settings": dataclasses.asdict(settings), "method": "ip", "families": [f.name for f in families]}
     names = [r.name for r in PAPER_MODELS]
 
     report = functools.partial(_stage_report, say, solver.options)
     done = functools.partial(_done, say)
     say(f"compiling the gait problems; M1-M4 from {len(families)} starts each ({coarse.settings.spans} knot "
-        f"spans), then the best in {settings.spans} spans ({_METHOD_NAMES[method]})")
+        f"spans), then the best in {settings.spans} spans")
     solutions = outputs.stage(out, "paper_models", key, lambda: multistart.solve_multistart(
         solver, names, paper_gait_models(PAPER_MODELS), families=families, coarse=coarse,
         progress=lambda part, i, row: report(f"M1-M4 {part}")(i, row),
@@ -254,34 +224,21 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
         "smallest power limit (study space)", minimal_power_limits(
             solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
-            progress=_power_report(say, solvers)),
+            progress=_power_report(say)),
         lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
 
-    return _write_results(out, solutions, at_20, minimal, settings, solver, method, say)
+    return _write_results(out, solutions, at_20, minimal, settings, solver, say)
 
 
-_METHOD_NAMES = {"ip": "interior point", "sqp": "SLSQP", "al": "augmented Lagrangian"}
-
-
-def _stage_report(say: Callable[..., None], options, label: str) -> Callable[[int, dict], None]:
-    """A stage's progress line per iteration; its count: problems done for SLSQP (one solve after
-    another) and for the interior point (a batch, reported after every block of iterations), outer
-    iterations for the batched augmented Lagrangian."""
-    if isinstance(options, ip.InteriorPointOptions):
-        return lambda i, row: say(
-            f"{label}: interior-point iteration {i} of at most {options.max_iterations}, "
-            f"{int(np.sum(row['done']))} of {row['done'].size} problems finished, largest KKT error "
-            f"{np.max(row['error']):.1e}, cheapest J {np.min(row['cost']):.4f}",
-            task=(label, int(np.sum(row["done"])), row["done"].size))
-    if isinstance(options, sqp.SQPOptions):
-        return lambda i, row: say(
-            f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at "
-            f"most {options.max_iterations}, J = {row['cost'][0]:.4f}, scaled violation "
-            f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
-    return lambda i, row: say(f"{label}: outer iteration {i + 1} of at most {options.max_outer}, "
-                              f"largest scaled violation {np.max(row['violation']):.1e} (done below "
-                              f"{options.tolerance:.0e}), gradients {int(np.max(row['gradients']))}",
-                              task=(label, i + 1, options.max_outer))
+def _stage_report(say: Callable[..., None], options: ip.InteriorPointOptions,
+                  label: str) -> Callable[[int, dict], None]:
+    """A stage's progress line after every block of interior-point iterations, counting the batch's
+    problems finished."""
+    return lambda i, row: say(
+        f"{label}: interior-point iteration {i} of at most {options.max_iterations}, "
+        f"{int(np.sum(row['done']))} of {row['done'].size} problems finished, largest KKT error "
+        f"{np.max(row['error']):.1e}, cheapest J {np.min(row['cost']):.4f}",
+        task=(label, int(np.sum(row["done"])), row["done"].size))
 
 
 def _done(say: Callable[..., None], label: str, result, solved: Callable = len):
@@ -291,27 +248,21 @@ def _done(say: Callable[..., None], label: str, result, solved: Callable = len):
     return result
 
 
-def _power_report(say: Callable[..., None], solvers: StudySolvers) -> Callable[[int, dict], None]:
-    """The smallest power limit's progress line, counted per model of the stage's space."""
+def _power_report(say: Callable[..., None]) -> Callable[[int, dict], None]:
+    """The smallest power limit's progress line (one batch per stage of the continuation), counted per
+    model of the stage's space."""
     def report(i, row):
-        if "done" in row:  # the interior point: one batch per stage of the continuation
-            stage = f", J's weight {row['energy_weight']:g}" if "energy_weight" in row else ""
-            label = f"smallest power limit ({row.get('space', 'study space')}{stage})"
-            objective = "t + w J / J0" if row.get("energy_weight", 0.0) > 0 else "M_W / start"
-            return say(f"{label}: interior-point iteration {i}, {int(np.sum(row['done']))} of "
-                       f"{row['done'].size} finished, {objective} {np.array2string(row['cost'], precision=3)}",
-                       task=(label, int(np.sum(row["done"])), row["done"].size))
-        space = row.get("space", "study space")
-        label, cap = f"smallest power limit ({space})", (
-            solvers.coarse_power if space == "coarse space" else solvers.power).options.max_iterations
-        say(f"{label}: {row['name']} ({row['problem'] + 1} of {row['problems']}), SLSQP iteration {i} of at most "
-            f"{cap}, M_W / start = {row['cost'][0]:.4f}, scaled violation "
-            f"{row['violation'][0]:.1e}", task=(label, row["problem"], row["problems"]))
+        stage = f", J's weight {row['energy_weight']:g}" if "energy_weight" in row else ""
+        label = f"smallest power limit ({row.get('space', 'study space')}{stage})"
+        objective = "t + w J / J0" if row.get("energy_weight", 0.0) > 0 else "M_W / start"
+        say(f"{label}: interior-point iteration {i}, {int(np.sum(row['done']))} of "
+            f"{row['done'].size} finished, {objective} {np.array2string(row['cost'], precision=3)}",
+            task=(label, int(np.sum(row["done"])), row["done"].size))
     return report
 
 
 def _write_results(out: Path, solutions: list[GaitSolution], at_20: list[GaitSolution], minimal: list[dict],
-                   settings: gait.GaitSettings, solver: GaitSolver, method: str, say: Callable[..., None]) -> dict:
+                   settings: gait.GaitSettings, solver: GaitSolver, say: Callable[..., None]) -> dict:
     """The study's files from its three stages: results.json, tables.md, Figs. 2-3, convergence.png,
     trajectories.npz and the drive-train part; returns the results record."""
     names = [s.name for s in solutions]
@@ -326,7 +277,7 @@ def _write_results(out: Path, solutions: list[GaitSolution], at_20: list[GaitSol
         "models": records,
         "at_20W": [gait_report.results_record(s) for s in at_20],
         "settings": dataclasses.asdict(settings),
-        "solver": {"method": method, **dataclasses.asdict(solver.options)},
+        "solver": {"method": "interior point", **dataclasses.asdict(solver.options)},
         "violation_tolerance_own_units": 1e-4,
     }
     outputs.write_json(out / "results.json", results)
@@ -337,7 +288,7 @@ def _write_results(out: Path, solutions: list[GaitSolution], at_20: list[GaitSol
                "| largest power there [% of M_W over] |", "|---|---|---|---|---|---|"]
     tables += [f"| {s.name} | {s.status} | {s.cost:.4g} | {s.max_violation:.1e} | {s.refinement['cost']:.4g} "
                f"| {100 * s.refinement['power_margin_fraction']:.2f} |" for s in at_20]
-    tables += ["", f"## Smallest power limit with a feasible gait ({_METHOD_NAMES[method]} minimising M_W)", "",
+    tables += ["", "## Smallest power limit with a feasible gait (the interior point minimising M_W)", "",
                f"| model | smallest M_W [W] (kept on {solver.refined_settings.steps} steps) | on the solve grid [W] "
                "| status | J of that gait |", "|---|---|---|---|---|"]
     tables += [f"| {n} | {_number(m['min_power_limit_W'], '.3f')} | {_number(m['min_power_solve_grid_W'], '.3f')} "
