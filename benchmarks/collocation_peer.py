@@ -1,6 +1,6 @@
 """An independent direct-collocation solve of the planar-step problem (CasADi + IPOPT, Hermite-Simpson).
 
-Written from ``../shared/spec/planar-step.md`` alone, sharing only the robot parameters
+Written from the problem's statement (``docs/gait-problem.md``) alone, sharing only the robot parameters
 (``biped_jax.robots.specs``) with the product: its own coordinates (absolute link pitches from the
 vertical, positive leaning forward), its own Lagrangian dynamics (CasADi symbolic), its own impact map
 and relabelling. Hermite-Simpson in separated form: states and torques at every knot and segment

@@ -2,12 +2,12 @@
 
 ``biped-jax reproduce --out DIR`` runs the paper's study (optimal steps of M1-M4, the 20 W question,
 the smallest feasible power limits) and writes tables (markdown), figures (PNG) and ``results.json``
-into DIR. ``biped-jax kelly --out DIR`` solves Kelly's five-link biped benchmark with the same optimiser
-and writes ``kelly.json``. ``biped-jax donald`` walks DONALD in MJX,
-``biped-jax humanoid`` replays the optimal gait on the 16-DoF humanoid under contact,
-``biped-jax codesign`` co-designs gear ratios, windings and masses with the gait.
-``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
-the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
+into DIR; ``biped-jax solve`` does the same for one problem of the user's own. ``biped-jax kelly --out
+DIR`` solves Kelly's five-link biped benchmark with the same optimiser and writes ``kelly.json``.
+``biped-jax donald`` walks DONALD in MJX, ``biped-jax humanoid`` replays the optimal gait on the 16-DoF
+humanoid under contact, ``biped-jax codesign`` co-designs gear ratios, windings and masses with the
+gait. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists the
+robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 """
 
 from __future__ import annotations
@@ -35,6 +35,19 @@ def _integer(name: str, low: int, high: int):
             return checks.integer_in(f"--{name}", int(text), low, high)
         except ValueError:
             raise argparse.ArgumentTypeError(f"--{name} must be an integer in [{low}, {high}], got {text!r}") from None
+    return parse
+
+
+def _number(name: str, low: float, high: float):
+    """An argparse type: a finite number in (low, high] (the subcommand's usage names a bad one)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = None
+        if value is None or not low < value <= high:
+            raise argparse.ArgumentTypeError(f"--{name} must be a number in ({low:g}, {high:g}], got {text!r}")
+        return value
     return parse
 
 
@@ -102,6 +115,20 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     run.add_argument("--resume", action="store_true",
                      help="continue an interrupted study in --out from its finished stages (OUT/stages)")
+    own = subcommands.add_parser("solve", help="one gait problem of your own (mass class, speed, step length, "
+                                 "power limit), solved as the study solves its models")
+    _out_argument(own)
+    own.add_argument("--mass-class", choices=("12kg", "18kg"), default="12kg", help="the biped (default 12kg)")
+    own.add_argument("--speed", type=_number("speed", 0.0, 5.0), default=0.555,
+                     help="average walking speed, m/s, in (0, 5] (default 0.555)")
+    own.add_argument("--step-length", type=_number("step-length", 0.0, 1.0), default=0.2,
+                     help="step length, m (default 0.2; at most the legs' reach)")
+    own.add_argument("--power-limit", type=_number("power-limit", 0.0, 1e6), default=20.0,
+                     help="bound on every joint's |qdot u|, W (default 20)")
+    own.add_argument("--smallest-power-limit", action="store_true",
+                     help="also find the smallest power limit at which the model still walks")
+    _space_arguments(own, substeps=STUDY_SUBSTEPS, segments=True, spans=STUDY_SPANS)
+    own.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     bench = subcommands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
     _out_argument(bench)
     _space_arguments(bench)
@@ -149,9 +176,10 @@ def _parser() -> argparse.ArgumentParser:
 
 
 #: What each command runs (:mod:`biped_jax.commands`).
-RUNS = {"reproduce": commands.run_reproduce, "kelly": commands.run_kelly, "donald": commands.run_donald,
-        "humanoid": commands.run_humanoid, "codesign": commands.run_codesign, "drives": commands.run_drives,
-        "step": commands.run_step, "models": commands.run_models, "view": commands.run_view}
+RUNS = {"reproduce": commands.run_reproduce, "solve": commands.run_solve, "kelly": commands.run_kelly,
+        "donald": commands.run_donald, "humanoid": commands.run_humanoid, "codesign": commands.run_codesign,
+        "drives": commands.run_drives, "step": commands.run_step, "models": commands.run_models,
+        "view": commands.run_view}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -161,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.command == "donald" and args.resume and not args.faster:
         args.parser.error("--resume continues the --faster optimisation; give both or neither")
+    if args.command == "solve":
+        commands.check_solve(args)  # the problem's own checks, before the output folder is made
     if not hasattr(args, "out"):
         return args.run(args)
     with interrupts.handled():

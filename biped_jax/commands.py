@@ -274,6 +274,46 @@ def run_codesign(args) -> int:
     return 0
 
 
+def solve(out: Path, problem, settings, smallest_power_limit: bool = False) -> dict:
+    """One problem of the user's own with a live progress display; see :mod:`biped_jax.studies.solve`."""
+    from biped_jax.studies import solve as own
+
+    started = time.perf_counter()
+    with live_progress(("starts:", "refined space:", "smallest power limit")) as progress:
+        results = own.run_solve(out, problem, settings, smallest_power_limit, progress)
+    record = results["solution"]
+    check = record["refinement"]
+    console.print(f"{problem.name}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
+                  f"{check['steps']} steps), largest violation {record['max_violation']:.1e}")
+    if "smallest_power_limit" in results:
+        minimum = results["smallest_power_limit"]
+        console.print("smallest feasible M_W " + ("-" if minimum["min_power_limit_W"] is None
+                                                  else f"{minimum['min_power_limit_W']:.3f} W")
+                      + f" ({minimum['min_power_status']})")
+    console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
+                  f"trajectories.npz in {time.perf_counter() - started:.0f} s")
+    return results
+
+
+def check_solve(args):
+    """The problem and the space of ``biped-jax solve``, checked as the API checks them (the legs' reach,
+    segments dividing spans) before the output folder is touched; the parser names a bad value."""
+    from biped_jax.studies.solve import Problem
+    problem = Problem(args.mass_class, args.speed, args.step_length, args.power_limit)
+    configure_jax()
+    try:
+        problem.model()
+    except ValueError as error:
+        args.parser.error(str(error))
+    return problem, _settings(args)
+
+
+def run_solve(args) -> int:
+    problem, settings = check_solve(args)
+    solve(args.out, problem, settings, args.smallest_power_limit)
+    return 0
+
+
 def run_reproduce(args) -> int:
     configure_jax()
     reproduce(args.out, _settings(args), args.resume, args.quick)

@@ -42,6 +42,12 @@ CLI_ROWS = [
     (["humanoid", "--model", "M9"], "'M9'"),
     (["codesign", "--iterations", "0"], "--iterations must be an integer in [1, 1000], got '0'"),
     (["reproduce", "--dynamics", "euler"], "'euler'"),
+    (["solve", "--speed", "0"], "--speed must be a number in (0, 5], got '0'"),
+    (["solve", "--power-limit", "nan"], "--power-limit must be a number in (0, 1e+06], got 'nan'"),
+    (["solve", "--step-length", "-0.2"], "--step-length must be a number in (0, 1], got '-0.2'"),
+    (["solve", "--step-length", "0.7"], "step_length 0.7 m is beyond the legs' reach"),
+    (["solve", "--mass-class", "30kg"], "'30kg'"),
+    (["solve", "--spans", "6", "--segments", "4"], "segments must divide spans"),
 ]
 
 

@@ -1,6 +1,7 @@
 """The command line: the heuristic-step command writes its files and the numbers in them hang together,
 the other commands at short settings, bad arguments, and the compilation cache they configure."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -104,6 +105,37 @@ def test_reproduce_writes_the_study(tmp_path):
     for name in ("tables.md", "fig2_trajectories.png", "fig3_torque_rpm.png", "convergence.png"):
         assert (tmp_path / name).stat().st_size > 1000
     assert "| Max. (W) |" in (tmp_path / "tables.md").read_text()
+
+
+@pytest.mark.xdist_group("test_gait")  # paper_solutions: the gait tests' fixture, on their worker
+def test_solve_poses_ones_own_problem_and_writes_its_files(tmp_path, monkeypatch, paper_solutions):
+    """``biped-jax solve`` hands the study's multistart the problem asked for (mass class, speed, step
+    length, power limit) in the space asked for, from every start family, and writes its solution's
+    files. The multistart is a stand-in returning a solved gait (its own tests and the study's cover
+    it; solving here would compile the study's programs a second time in the suite)."""
+    from biped_jax.gait import multistart
+    solved = paper_solutions[0]
+    asked = {}
+
+    def stand_in(fine, names, models, families, coarse, progress=None, finished=None):
+        asked.update(settings=fine.settings, coarse=coarse.settings, families=families, model=models[0])
+        return [dataclasses.replace(solved, name=names[0])]
+    monkeypatch.setattr(multistart, "solve_multistart", stand_in)
+    assert cli.main(["solve", "--out", str(tmp_path), "--speed", "0.45", "--step-length", "0.22",
+                     "--power-limit", "15", "--spans", "8", "--substeps", "2", "--segments", "4"]) == 0
+    model = asked["model"]
+    assert (float(model.speed), float(model.step_length), float(model.power_limit)) == (0.45, 0.22, 15.0)
+    assert float(model.design.total_mass) == pytest.approx(12.0, abs=1e-2)
+    assert (asked["settings"].spans, asked["settings"].substeps, asked["settings"].segments) == (8, 2, 4)
+    assert asked["coarse"].spans == 2 and asked["families"] == study.STUDY_FAMILIES
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["problem"] == {"mass_class": "12kg", "speed": 0.45, "step_length": 0.22, "power_limit": 15.0}
+    assert results["settings"]["spans"] == 8 and "smallest_power_limit" not in results
+    assert results["solution"]["cost"] == pytest.approx(solved.cost, rel=1e-12)
+    assert results["solution"]["status"] == solved.status
+    assert "12kg, 0.45 m/s, L = 0.22 m, M_W = 15 W" in (tmp_path / "tables.md").read_text()
+    for name in ("fig2_trajectories.png", "fig3_torque_rpm.png", "trajectories.npz"):
+        assert (tmp_path / name).stat().st_size > 1000
 
 
 @pytest.mark.slow

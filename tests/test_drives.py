@@ -56,7 +56,8 @@ def test_supply_voltage_scales_the_characteristic_line_as_eq_2_5():
 
 
 def test_estimated_windings_follow_the_spec_table_at_38_volts():
-    """spec motors.md: no-load speed and stall torque at 38 V of the estimated windings."""
+    """No-load speed and stall torque at 38 V of the estimated windings (the catalogue's provenance,
+    biped_jax/data/maxon_catalogue.json)."""
     expected = {"RE25-30V": (12400, 309), "RE25-42V": (8860, 221), "RE25-48V": (7750, 193)}
     for part, (speed_rpm, stall_mnm) in expected.items():
         motor = CATALOGUE.motor(part)

@@ -97,7 +97,7 @@ def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
 
 def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait.GaitModel:
     """The gait problem of a design (traceable: ``speed`` etc. may be arrays). The geometry is that of
-    the paper's biped (planar-step.md); masses and drives come from ``design``. Concrete values are
+    the paper's biped (docs/gait-problem.md); masses and drives come from ``design``. Concrete values are
     checked (:func:`biped_jax.gait.problem.check_problem`)."""
     if checks.concrete(speed, power_limit, step_length):
         gait.check_problem(speed, power_limit, step_length)

@@ -2,7 +2,7 @@
 
 The paper's approach (Section 3): shift the pendulum mass over the support foot, tilt about the
 support ankle to unload the other foot, swing it forward, set it down, move the pelvis forward over
-it in double support, repeat. The hips are pitch joints and the ankles roll joints (robots.md), so
+it in double support, repeat. The hips are pitch joints and the ankles roll joints (docs/models.md), so
 the legs and pelvis form a frame that is rigid in roll: in double support only the pendulum moves the
 centre of mass sideways, and the ankle tilt that lifts the swing foot moves it further over the
 support foot. The swing foot lands heel first (a kneeless leg ahead of the hip is pitched) and rolls

@@ -66,7 +66,7 @@ DIFFERENCE_STEP = 0.03
 def differentiable_donald(drive: drives.JointDrives):
     """DONALD with one constraint-solver iteration per step: MJX's solver loop is a while_loop, which
     reverse mode cannot differentiate; a single Newton iteration (warm-started) is a scan
-    (mjx-notes.md). The walk is re-checked with the full solver after optimising."""
+    (docs/dynamics.md, "Through contact"). The walk is re-checked with the full solver after optimising."""
     mj_model, _ = donald.load_donald(drive)
     mj_model.opt.iterations = 1
     from biped_jax.robots import registry as robots
@@ -166,11 +166,12 @@ def augmented_lagrangian(objective, inequalities, multipliers, penalty):
 
 def _inner(value, value_and_grad, z, multipliers, options: SpeedOptions):
     """L-BFGS (optax's direction) with a backtracking Armijo search on the augmented Lagrangian at fixed
-    multipliers; returns the last accepted point and the gradient evaluations spent."""
+    multipliers; returns the last accepted point, the gradient evaluations spent, whether it ended
+    stationary (|gradient|_inf <= ``options.stationarity``) and whether it took a step at all."""
     lbfgs = optax.scale_by_lbfgs(memory_size=options.memory)
     state = lbfgs.init(z)
     current, grad = value_and_grad(z, multipliers)
-    spent = 1
+    spent, moved = 1, False
     for _ in range(options.max_inner):
         if float(jnp.max(jnp.abs(grad))) <= options.stationarity:
             break
@@ -186,10 +187,10 @@ def _inner(value, value_and_grad, z, multipliers, options: SpeedOptions):
             step *= 0.5
         else:
             break  # no decrease along the direction: noise, not descent
-        z = trial
+        z, moved = trial, True
         current, grad = value_and_grad(z, multipliers)
         spent += 1
-    return z, spent
+    return z, spent, float(jnp.max(jnp.abs(grad))) <= options.stationarity, moved
 
 
 def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None) -> dict:
@@ -197,10 +198,12 @@ def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None)
     central differences of width :data:`DIFFERENCE_STEP`: ``options.max_outer`` rounds of an inner
     L-BFGS solve of the augmented Lagrangian and the multiplier update z <- max(0, z + rho g).
 
-    Returns {"z", "cost", "start_cost" (f at z0), "violation" (largest scaled), "status" (converged: feasible within
-    ``options.tolerance`` with the multipliers settled; else iteration limit), "iterates" (z after
-    every outer iteration), "gradients"}. ``progress(outer, row)`` hears each outer iteration (row:
-    "cost", "violation", "gradients", each of shape (1,))."""
+    Returns {"z", "cost", "start_cost" (f at z0), "violation" (largest scaled), "status" (converged:
+    feasible within ``options.tolerance``, the multipliers settled and the inner solve stationary;
+    stalled: an inner solve found no descent at all, the smoothed objective's noise, not an optimum;
+    else iteration limit), "iterates" (z after every outer iteration), "gradients"}.
+    ``progress(outer, row)`` hears each outer iteration (row: "cost", "violation", "gradients", each of
+    shape (1,))."""
     differenced = nlp.central_differences(evaluate, DIFFERENCE_STEP)
 
     def merit(z, multipliers):
@@ -214,7 +217,7 @@ def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None)
     multipliers, gradients, status, iterates = jnp.zeros_like(inequalities), 0, nlp.ITERATION_LIMIT, []
     violation = float(jnp.max(jnp.maximum(inequalities, 0.0)))
     for outer in range(options.max_outer):
-        z, spent = _inner(value, value_and_grad, z, multipliers, options)
+        z, spent, stationary, moved = _inner(value, value_and_grad, z, multipliers, options)
         gradients += spent
         objective, _, inequalities = outputs(z, None)
         violation = float(jnp.max(jnp.maximum(inequalities, 0.0)))
@@ -225,8 +228,11 @@ def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None)
         if progress:
             progress(outer, {"cost": np.array([float(objective)]), "violation": np.array([violation]),
                              "gradients": np.array([gradients])})
-        if violation <= options.tolerance and settled:
+        if violation <= options.tolerance and settled and stationary:
             status = nlp.CONVERGED
+            break
+        if not moved:
+            status = nlp.STALLED
             break
     return {"z": np.asarray(z), "cost": float(objective), "start_cost": start_cost, "violation": violation,
             "status": status, "iterates": iterates, "gradients": gradients}

@@ -1,4 +1,4 @@
-"""The periodic one-step gait problem of planar-step.md, transcribed so that its answer does not move
+"""The periodic one-step gait problem of docs/gait-problem.md, transcribed so that its answer does not move
 with the grid.
 
 Parameterisation (see README, "Gait optimiser"): the four actuated joints are *prescribed* as clamped

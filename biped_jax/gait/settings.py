@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -149,7 +148,7 @@ def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> 
 
 
 def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
-    """A problem of planar-step.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
+    """A problem of docs/gait-problem.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
     drives (the paper's problem; ``biped_jax.codesign.problem.gait_model`` fits real ones); raises ValueError
     naming a non-positive speed, limit or length, or a step beyond the legs' reach. Numbers may be
     Python, numpy or 0-d JAX arrays (concrete: a traced value raises TypeError)."""
@@ -178,7 +177,9 @@ def with_limit_fraction(model: GaitModel, fraction) -> GaitModel:
     return dataclasses.replace(model, power_limit=model.power_limit * fraction)
 
 
-class LimitParams(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class LimitParams:
     """The smallest power limit's problem data, one problem (a batch: leading dimension B).
 
     Attributes:

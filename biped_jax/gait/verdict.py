@@ -6,7 +6,7 @@ re-simulation, the refinement check (the same decision vector re-simulated on a 
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -40,7 +40,9 @@ def refined_tolerance(group: str, power_limit):
     return _REFINED_TOLERANCE[gait.CONSTRAINT_GROUPS[group][1]]
 
 
-class GridCheck(NamedTuple):
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class GridCheck:
     """What the verdict reads of one rollout (or a batch: every leaf with a leading dimension B).
 
     Attributes:

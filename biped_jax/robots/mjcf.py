@@ -47,7 +47,7 @@ def planar_pinned_xml(spec: PlanarBipedSpec, name: str, timestep: float = 0.005)
 
     Coordinates (qpos order): stance (absolute pitch of the stance shank, 0 = upright, positive leaning
     forward), knee1, hip1, hip2, knee2. The stance knee and hip joints have axis -y so that every
-    coordinate is the relative angle of planar-step.md (hip i: thigh relative to torso; knee i: shank
+    coordinate is the relative angle of docs/gait-problem.md (hip i: thigh relative to torso; knee i: shank
     relative to thigh, flexion positive) even though the chain runs from the foot up.
     """
     s = spec

@@ -10,8 +10,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-GRAVITY = 9.81  # m/s^2, planar-step.md
-#: Section width of thigh and shank boxes, and the torso's depth; planar-step.md (paper Table 1).
+GRAVITY = 9.81  # m/s^2, docs/gait-problem.md
+#: Section width of thigh and shank boxes, and the torso's depth; docs/gait-problem.md (paper Table 1).
 LINK_SECTION = 0.1
 
 
@@ -38,7 +38,7 @@ def box_inertia(mass: float, size: tuple[float, float, float]) -> tuple[float, f
 
 @dataclasses.dataclass(frozen=True)
 class PlanarBipedSpec:
-    """The sagittal five-link biped of planar-step.md (uniform solid boxes).
+    """The sagittal five-link biped of docs/gait-problem.md (uniform solid boxes).
 
     Attributes:
       torso_mass, thigh_mass, shank_mass: kg per link (paper Table 2).
@@ -123,14 +123,14 @@ PLANAR_SPECS = {"12kg": PLANAR_12KG, "18kg": PLANAR_18KG, "kelly": KELLY_BIPED}
 
 @dataclasses.dataclass(frozen=True)
 class HumanoidSpec:
-    """The 16-DoF humanoid of robots.md (paper Fig. 1, Tables 1-2).
+    """The 16-DoF humanoid of docs/models.md (paper Fig. 1, Tables 1-2).
 
     The torso of Table 2 lumps arms and head; ``arm_mass`` per arm is taken out of it so the total stays.
 
     Attributes:
       planar: link masses and lengths shared with the sagittal model.
-      hip_half_width: m, lateral offset of each hip from the mid-plane (robots.md).
-      arm_mass, arm_length: kg and m per arm (robots.md).
+      hip_half_width: m, lateral offset of each hip from the mid-plane (docs/models.md).
+      arm_mass, arm_length: kg and m per arm (docs/models.md).
       arm_radius: m, capsule radius of an arm (ours).
       shoulder_inset: m, shoulder joint below the torso's top (ours).
       foot: "point" (sphere at the shank end, as the paper) or "flat" (box foot, the paper's next step).
@@ -169,7 +169,7 @@ class HumanoidSpec:
 
 @dataclasses.dataclass(frozen=True)
 class DonaldSpec:
-    """DONALD, the 4-DoF prototype (paper Section 3, Table 7; robots.md).
+    """DONALD, the 4-DoF prototype (paper Section 3, Table 7; docs/models.md).
 
     Attributes:
       link_length, link_mass: leg lever arm, m and kg (Table 7).
@@ -180,7 +180,7 @@ class DonaldSpec:
       base_plate_mass: per joint, kg (Table 7).
       gear_ratio: GP 32 A four-stage ratio (Table 7; catalogue 245.96).
       hip_half_width: m, lateral offset of each hip joint from the mid-plane (ours).
-      pendulum_mass, pendulum_length: kg and m of the sideways inverted pendulum (robots.md).
+      pendulum_mass, pendulum_length: kg and m of the sideways inverted pendulum (docs/models.md).
       friction: sliding friction coefficient of foot on ground (ours).
     """
 

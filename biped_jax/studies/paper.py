@@ -32,7 +32,7 @@ class PaperModel:
     power_limit: float
 
 
-#: Table 3 of the paper, power limits of Section 2.2 (planar-step.md).
+#: Table 3 of the paper, power limits of Section 2.2 (docs/gait-problem.md).
 PAPER_MODELS = (PaperModel("M1", "12kg", 0.417, 20.0), PaperModel("M2", "12kg", 0.555, 20.0),
                 PaperModel("M3", "18kg", 0.417, 25.0), PaperModel("M4", "18kg", 0.555, 40.0))
 
@@ -179,7 +179,7 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
               progress: Callable[..., None] | None = None, resume: bool = False,
               families: tuple | None = None) -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
-    space: :func:`biped_jax.gait.solver.solve_multistart`), M1-M4 at 20 W (warm-started)
+    space: :func:`biped_jax.gait.multistart.solve_multistart`), M1-M4 at 20 W (warm-started)
     and the minimal power limits; writes
     results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, convergence.png,
     trajectories.npz, and the drive-train part (drives.json, drives.md, fig4/fig5). Each finished
@@ -224,7 +224,7 @@ def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
     minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
         "smallest power limit (study space)", minimal_power_limits(
             solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
-            progress=_power_report(say)),
+            progress=power_report(say)),
         lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
 
     return _write_results(out, solutions, at_20, minimal, settings, solver, say)
@@ -248,7 +248,7 @@ def _done(say: Callable[..., None], label: str, result, solved: Callable = len):
     return result
 
 
-def _power_report(say: Callable[..., None]) -> Callable[[int, dict], None]:
+def power_report(say: Callable[..., None]) -> Callable[[int, dict], None]:
     """The smallest power limit's progress line (one batch per stage of the continuation), counted per
     model of the stage's space."""
     def report(i, row):
