@@ -98,10 +98,10 @@ def main():
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     from biped_jax.codesign import problem as codesign
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import codesign as codesign_study
-    settings = gait.GaitSettings(spans=args.spans, segments=args.segments, substeps=args.substeps)
+    settings = gait_problem.GaitSettings(spans=args.spans, segments=args.segments, substeps=args.substeps)
     interior = GaitSolver(settings, codesign_study.IP_OPTIONS)
     started = time.perf_counter()
     reference, = codesign.solve_designs(interior, [codesign.catalogue_design()], 0.555, 20.0)

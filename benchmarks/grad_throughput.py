@@ -27,13 +27,13 @@ SPEED, POWER_LIMIT, STEP_LENGTH = 0.555, 20.0, 0.2  # model M2
 
 
 def _problem(settings):
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     solver = GaitSolver(settings)
-    model = gait.gait_model("12kg", SPEED, POWER_LIMIT, STEP_LENGTH)
-    x0 = jax.jit(lambda m: gait.initial_guess(m, settings))(model)
-    trajectory = jax.jit(lambda x, m: gait.simulate(x, m, solver.biped, settings))(x0, model)
-    h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, settings))
+    model = gait_problem.gait_model("12kg", SPEED, POWER_LIMIT, STEP_LENGTH)
+    x0 = jax.jit(lambda m: gait_problem.initial_guess(m, settings))(model)
+    trajectory = jax.jit(lambda x, m: gait_problem.simulate(x, m, solver.biped, settings))(x0, model)
+    h, g = gait_problem.scaled_constraints(gait_problem.constraint_groups(trajectory, model, settings))
     multipliers = (0.1 * jnp.ones(h.size), 0.1 * jnp.ones(g.size))
     return solver, model, np.asarray(x0), multipliers
 
@@ -71,18 +71,18 @@ _WORKER = {}
 
 
 def _worker_init(settings, multipliers):
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.mujoco_reference import CGaitRollout
     jax.config.update("jax_platforms", "cpu")
     _WORKER["rollout"] = CGaitRollout("12kg", settings)
-    _WORKER["model"] = gait.gait_model("12kg", SPEED, POWER_LIMIT, STEP_LENGTH)
+    _WORKER["model"] = gait_problem.gait_model("12kg", SPEED, POWER_LIMIT, STEP_LENGTH)
     _WORKER["settings"] = settings
     _WORKER["multipliers"] = tuple(np.asarray(m) for m in multipliers)
 
     @jax.jit
     def merit(trajectory, model, lam_eq, lam_in):  # the cheap algebra after the C rollout
-        h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, settings))
-        return lagrangian_value(gait.cost(trajectory), h, g, lam_eq, lam_in)
+        h, g = gait_problem.scaled_constraints(gait_problem.constraint_groups(trajectory, model, settings))
+        return lagrangian_value(gait_problem.cost(trajectory), h, g, lam_eq, lam_in)
     _WORKER["merit"] = merit
 
 
@@ -132,8 +132,8 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    from biped_jax.gait import problem as gait
-    settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+    from biped_jax.gait import problem as gait_problem
+    settings = gait_problem.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
                                 dynamics=args.dynamics, segments=args.segments)
     solver, model, x0, multipliers = _problem(settings)
     rows, mjx_gradient = [], None

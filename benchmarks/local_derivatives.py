@@ -27,16 +27,16 @@ def largest_difference(a_parts, b_parts) -> dict:
 
 
 def space_problem(settings, kind: str):
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait import segmented
     from biped_jax.gait.solver import GaitSolver
     solver = GaitSolver(settings, check_refinement=False)
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     x = np.asarray(solver._initial_guess(jax.tree.map(lambda a: a[None], model))[0])
     x = x + 0.01 * np.random.default_rng(0).normal(size=x.shape)
     problem = solver.problem if kind == "energy" else solver.limit_problem
     point = x if kind == "energy" else np.concatenate([x, [0.9]])
-    params = model if kind == "energy" else gait.LimitParams(model, np.asarray(0.01))
+    params = model if kind == "energy" else gait_problem.LimitParams(model, np.asarray(0.01))
     return solver, params, point, problem, segmented.local_problem(solver.biped, settings, kind)
 
 
@@ -96,10 +96,10 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    from biped_jax.gait import problem as gait
-    rows = exactness(gait.GaitSettings(spans=4, segments=4, substeps=2))
-    rows += exactness(gait.GaitSettings(spans=8, segments=4, substeps=2))
-    rows.append(timing(gait.GaitSettings(spans=args.spans, segments=args.spans, substeps=args.substeps),
+    from biped_jax.gait import problem as gait_problem
+    rows = exactness(gait_problem.GaitSettings(spans=4, segments=4, substeps=2))
+    rows += exactness(gait_problem.GaitSettings(spans=8, segments=4, substeps=2))
+    rows.append(timing(gait_problem.GaitSettings(spans=args.spans, segments=args.spans, substeps=args.substeps),
                        args.batch, args.repeats))
     save_results(f"local_derivatives_{args.spans}spans", {"float": "float64"}, rows, args.out)
 

@@ -32,16 +32,16 @@ def fitted_start(peer: dict, settings) -> np.ndarray:
     """Our decision vector closest to the peer's solution, shape (settings.size,)."""
     from scipy.interpolate import CubicHermiteSpline
 
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.robots import planar_biped
     phi, phid, t = peer["phi"], peer["phid"], peer["t"]
     joints = (_PEER_TO_JOINTS @ phi) * _JOINT_SIGNS[:, None]
-    points = np.linalg.lstsq(gait.basis(settings, t / t[-1])[0], joints.T, rcond=None)[0]
+    points = np.linalg.lstsq(gait_problem.basis(settings, t / t[-1])[0], joints.T, rcond=None)[0]
     points[-1] = 0.5 * (points[-1] + points[0][planar_biped.SWAP])
-    starts = gait.segment_starts(settings) * t[-1]
+    starts = gait_problem.segment_starts(settings) * t[-1]
     stance = CubicHermiteSpline(t, phi[0], phid[0])  # our stance angle is the peer's shank pitch
     nodes = np.stack([stance(starts), np.interp(starts, t, phid[0])], axis=-1)
-    return np.asarray(gait.pack(nodes, points[1:]))
+    return np.asarray(gait_problem.pack(nodes, points[1:]))
 
 
 def main():
@@ -61,21 +61,22 @@ def main():
 
     from collocation_peer import PeerProblem, solve
 
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.robots.specs import PLANAR_SPECS
 
     peer = solve(PeerProblem(PLANAR_SPECS[args.mass_class], args.speed, args.power_limit), args.peer_segments)
     print(f"peer: J = {peer['cost']:.4f} ({peer['status']}, {args.peer_segments} segments)", flush=True)
-    settings = gait.GaitSettings(spans=args.spans, segments=args.segments)
+    settings = gait_problem.GaitSettings(spans=args.spans, segments=args.segments)
     solver = GaitSolver(settings, mass_class_template=args.mass_class).with_options(
         mu_initial=args.mu_initial, max_iterations=args.max_iterations)
-    model = gait.gait_model(args.mass_class, args.speed, args.power_limit)
+    model = gait_problem.gait_model(args.mass_class, args.speed, args.power_limit)
     x0 = fitted_start(peer, settings)
     fit = jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(
         jnp.asarray(x0)[None], jax.tree.map(lambda a: jnp.asarray(a, float)[None], model)))
-    fit_violations = {k: float(v) for k, v in gait.violations(gait.constraint_groups(fit, model, settings)).items()}
-    print(f"fit: J = {float(gait.cost(fit)):.4f}, violations "
+    groups = gait_problem.constraint_groups(fit, model, settings)
+    fit_violations = {k: float(v) for k, v in gait_problem.violations(groups).items()}
+    print(f"fit: J = {float(gait_problem.cost(fit)):.4f}, violations "
           + ", ".join(f"{k} {v:.1e}" for k, v in fit_violations.items() if v > 1e-4), flush=True)
     started = time.perf_counter()
     def progress(i, row):
@@ -88,7 +89,8 @@ def main():
     print(f"ours from there: {solution.status}, J = {solution.cost:.4f} ({gap:+.1f} % on the peer)"
           f", largest violation {solution.max_violation:.1e}, 4x grid J {solution.refinement['cost']:.4f}")
     save_results("peer_basin", {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-                 [{"peer_cost": peer["cost"], "fit_cost": float(gait.cost(fit)), "fit_violations": fit_violations,
+                 [{"peer_cost": peer["cost"], "fit_cost": float(gait_problem.cost(fit)),
+                   "fit_violations": fit_violations,
                    "status": solution.status, "cost": solution.cost, "max_violation": solution.max_violation,
                    "refinement": solution.refinement, "history": solution.history}], args.out)
 

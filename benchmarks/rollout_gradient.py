@@ -19,16 +19,16 @@ from _results import save_results
 
 
 def rollout_cost(biped, design, q0, qd0, controls, dynamics="mjx"):
-    from biped_jax.dynamics import hybrid_step as hs
+    from biped_jax.dynamics import hybrid_step
     from biped_jax.dynamics import planar_chain
-    pinned = hs.with_design(biped, design).pinned
+    pinned = hybrid_step.with_design(biped, design).pinned
     if dynamics == "chain":
         trajectory = planar_chain.stance_rollout(planar_chain.PlanarChain.from_model(biped.pinned), pinned,
                                                  q0, qd0, controls)
     else:
-        trajectory = hs.stance_rollout(pinned, q0, qd0, controls)
+        trajectory = hybrid_step.stance_rollout(pinned, q0, qd0, controls)
     q, qd, force = trajectory.q, trajectory.qd, trajectory.ground_force
-    foot, _ = hs.swing_foot(pinned, q[-1], qd[-1])
+    foot, _ = hybrid_step.swing_foot(pinned, q[-1], qd[-1])
     return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + foot[1] ** 2
             + 1e-3 * jnp.sum(controls ** 2) + 1e-6 * jnp.sum(force[:, 1] ** 2))
 
@@ -59,10 +59,10 @@ def main():
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", not args.float32)
 
-    from biped_jax.dynamics import hybrid_step as hs
-    biped = hs.load_planar_biped("12kg")
-    biped = hs.PlanarBiped(pinned=hs.with_timestep(biped.pinned, 1.8e-3), floating=biped.floating)
-    design = hs.planar_design("12kg")
+    from biped_jax.dynamics import hybrid_step
+    biped = hybrid_step.load_planar_biped("12kg")
+    biped = hybrid_step.PlanarBiped(pinned=hybrid_step.with_timestep(biped.pinned, 1.8e-3), floating=biped.floating)
+    design = hybrid_step.planar_design("12kg")
     q0 = jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0])
     qd0 = jnp.array([2.5, 0.0, 2.5, -4.0, 0.0])
     controls = jnp.full((args.horizon, 4), 0.5)

@@ -31,11 +31,11 @@ def main():
         jax.config.update("jax_compilation_cache_dir", str(args.cache))
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import paper as study
 
-    settings = gait.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
+    settings = gait_problem.GaitSettings(spans=args.spans, degree=args.degree, substeps=args.substeps,
                                 dynamics=args.dynamics)
     rows = []
 
@@ -48,7 +48,7 @@ def main():
         print(f"{label:38s} {seconds:8.1f} s  {row['status']}  J = "
               + ", ".join(f"{c:.4g}" for c in row["cost"]), flush=True)
 
-    m2 = [gait.gait_model("12kg", 0.555, 20.0)]
+    m2 = [gait_problem.gait_model("12kg", 0.555, 20.0)]
     started = time.perf_counter()
     solver = GaitSolver(settings)
     record("M2 cold (compile + solve)", started, solver.solve(["M2"], m2))

@@ -59,7 +59,7 @@ def main():
     import jax.numpy as jnp
     import numpy as np
 
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait import multistart
     from biped_jax.studies import paper as study
 
@@ -81,7 +81,7 @@ def main():
     solver, coarse = solvers.fine, solvers.coarse
 
     def paper_models():
-        models = [gait.gait_model(m.mass_class, m.speed, m.power_limit) for m in rows]
+        models = [gait_problem.gait_model(m.mass_class, m.speed, m.power_limit) for m in rows]
         return multistart.solve_multistart(solver, [m.name for m in rows], models, families=study.STUDY_FAMILIES,
                                             coarse=coarse)
 
@@ -90,7 +90,7 @@ def main():
         solutions = paper_models()
         found = {s.name: s for s in solutions}
         if at_20:
-            models = [gait.gait_model(m.mass_class, m.speed, p) for m, p in at_20]
+            models = [gait_problem.gait_model(m.mass_class, m.speed, p) for m, p in at_20]
             x0 = jnp.asarray(np.stack([found[m.name].x for m, _ in at_20]))
             for solution in solver.solve([label(*c) for c in at_20], models, x0=x0):
                 solution.starts = found[solution.name.split("@")[0]].starts

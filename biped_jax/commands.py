@@ -32,9 +32,9 @@ def configure_jax(cache_dir: str | None = None) -> None:
 
 
 def heuristic_steps(out: Path) -> dict:
-    """One heuristic PD-controlled step per mass class, reported; see :mod:`biped_jax.studies.heuristic_step`."""
+    """One heuristic PD-controlled step per mass class, reported; see :mod:`biped_jax.studies.step`."""
     from biped_jax.gait.heuristic_step import HeuristicGait
-    from biped_jax.studies import heuristic_step as step_study
+    from biped_jax.studies import step as step_study
 
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -226,6 +226,7 @@ def run_view(args) -> int:
 
 def run_drives(args) -> int:
     from biped_jax.drives import selection as drive_selection
+    from biped_jax.studies import drive_train
     source = (args.gaits or args.out) / "trajectories.npz"
     if not source.is_file():
         args.parser.error(f"no gait trajectories at {source}: run `biped-jax reproduce --out "
@@ -234,7 +235,7 @@ def run_drives(args) -> int:
         workspaces = drive_selection.load_workspaces(source)
     except ValueError as error:
         args.parser.error(str(error))
-    drive_selection.run_drive_study(args.out, workspaces)
+    drive_train.run_drive_study(args.out, workspaces)
     console.print(f"wrote into {args.out}: " + ", ".join(outputs.read_manifest(args.out)["files"]))
     return 0
 

@@ -15,8 +15,16 @@ API_MODULES = ("biped_jax", "biped_jax.robots", "biped_jax.dynamics", "biped_jax
 
 
 def build(output: Path) -> None:
+    """The pages of :data:`API_MODULES`, of the package Python imports, into ``output``."""
+    import contextlib
+
     import pdoc
-    pdoc.pdoc(*API_MODULES, output_directory=output)
+    output = Path(output).resolve()
+    output.mkdir(parents=True, exist_ok=True)
+    # from the output folder: in a checkout, a module name that is also a folder in the working
+    # directory would be ambiguous to pdoc (the installed package or the source tree)
+    with contextlib.chdir(output):
+        pdoc.pdoc(*API_MODULES, output_directory=output)
 
 
 if __name__ == "__main__":

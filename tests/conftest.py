@@ -16,8 +16,8 @@ configure_jax()  # what `biped-jax` sets: float64, the persistent cache (BIPED_J
 
 def short_settings():
     """The tests' reference space and grid: 4 cubic knot spans, 4 Runge-Kutta steps each."""
-    from biped_jax.gait import problem as gait
-    return gait.GaitSettings(spans=4, substeps=4)
+    from biped_jax.gait import problem as gait_problem
+    return gait_problem.GaitSettings(spans=4, substeps=4)
 
 
 @pytest.fixture(scope="session")

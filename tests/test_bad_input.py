@@ -222,37 +222,39 @@ def _api_rows():
     import dataclasses
 
     from biped_jax.codesign import problem as codesign
-    from biped_jax.drives import model as drives
+    from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection
-    from biped_jax.dynamics import hybrid_step as hs
-    from biped_jax.gait import problem as gait
+    from biped_jax.dynamics import hybrid_step
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.robots import registry as robots
-    biped, design = hs.load_planar_biped("12kg"), hs.planar_design("12kg")
+    biped, design = hybrid_step.load_planar_biped("12kg"), hybrid_step.planar_design("12kg")
     masses = lambda *m: dataclasses.replace(design, link_mass=np.array(m, dtype=float))  # noqa: E731
-    motor = drives.load_catalogue().motor("RE25-42V")
+    motor = drive_model.load_catalogue().motor("RE25-42V")
     reference = codesign.catalogue_design()
     return [
-        ("zero link mass", lambda: hs.with_design(biped, masses(0, 1, 1, 1, 1)), "link_mass must be positive"),
-        ("NaN link mass", lambda: hs.with_design(biped, masses(np.nan, 1, 1, 1, 1)), "link_mass must be finite"),
-        ("wrong-length q", lambda: hs.center_of_mass(biped.pinned, np.zeros(3)), "q must have shape (5,)"),
-        ("wrong-length q (foot)", lambda: hs.swing_foot(biped.pinned, np.zeros(4), np.zeros(5)), "shape (5,)"),
-        ("negative timestep", lambda: hs.with_timestep(biped.pinned, -0.005), "got -0.005"),
-        ("zero timestep", lambda: hs.with_timestep(biped.pinned, 0.0), "timestep must be"),
-        ("negative supply", lambda: drives.no_load_speed(motor, -38.0), "supply_voltage must be finite and > 0 V"),
-        ("negative ratio", lambda: drives.motor_torque(1.0, 1.0, -66.0, 0.7), "gear ratio must be finite"),
-        ("efficiency above 1", lambda: drives.motor_torque(1.0, 1.0, 66.0, 1.5), "got 1.5"),
+        ("zero link mass", lambda: hybrid_step.with_design(biped, masses(0, 1, 1, 1, 1)), "link_mass must be positive"),
+        ("NaN link mass", lambda: hybrid_step.with_design(biped, masses(np.nan, 1, 1, 1, 1)),
+         "link_mass must be finite"),
+        ("wrong-length q", lambda: hybrid_step.center_of_mass(biped.pinned, np.zeros(3)), "q must have shape (5,)"),
+        ("wrong-length q (foot)", lambda: hybrid_step.swing_foot(biped.pinned, np.zeros(4), np.zeros(5)), "shape (5,)"),
+        ("negative timestep", lambda: hybrid_step.with_timestep(biped.pinned, -0.005), "got -0.005"),
+        ("zero timestep", lambda: hybrid_step.with_timestep(biped.pinned, 0.0), "timestep must be"),
+        ("negative supply", lambda: drive_model.no_load_speed(motor, -38.0), "supply_voltage must be finite and > 0 V"),
+        ("negative ratio", lambda: drive_model.motor_torque(1.0, 1.0, -66.0, 0.7), "gear ratio must be finite"),
+        ("efficiency above 1", lambda: drive_model.motor_torque(1.0, 1.0, 66.0, 1.5), "got 1.5"),
         ("ratio far off the catalogue", lambda: codesign.nearest_gearhead(1e9), "far outside the catalogue"),
         ("MJCF folder", lambda: robots.load_mj_model_from_path(robots.models_dir()), "is a folder"),
-        ("negative speed", lambda: codesign.gait_model(reference, -1.0, 20.0), "speed must be positive"),
-        ("NaN speed", lambda: codesign.gait_model(reference, math.nan, 20.0), "got nan"),
+        ("negative speed", lambda: codesign.design_gait_model(reference, -1.0, 20.0), "speed must be positive"),
+        ("NaN speed", lambda: codesign.design_gait_model(reference, math.nan, 20.0), "got nan"),
         ("step beyond reach", lambda: codesign.solve_designs(None, [reference], 0.5, 20.0, step_length=5.0),
          "beyond the legs' reach"),
         ("no structure", lambda: codesign.robot_design(dataclasses.replace(reference, structure_mass=np.zeros(5))),
          "link_mass must be positive"),
-        ("settings: negative friction", lambda: gait.GaitSettings(friction=-0.1), "friction"),
-        ("settings: steps as float", lambda: gait.GaitSettings(spans=2.5), "got 2.5"),
-        ("gait_model: a string speed", lambda: gait.gait_model("12kg", "fast", 20.0), "speed must be a number"),
-        ("gait_model: a vector speed", lambda: gait.gait_model("12kg", np.ones(2), 20.0), "speed must be a number"),
+        ("settings: negative friction", lambda: gait_problem.GaitSettings(friction=-0.1), "friction"),
+        ("settings: steps as float", lambda: gait_problem.GaitSettings(spans=2.5), "got 2.5"),
+        ("gait_model: a string speed", lambda: gait_problem.gait_model("12kg", "fast", 20.0), "speed must be a number"),
+        ("gait_model: a vector speed", lambda: gait_problem.gait_model("12kg", np.ones(2), 20.0),
+         "speed must be a number"),
         ("co-design: no designs", lambda: codesign.solve_designs(None, [], 0.5, 20.0), "designs is empty"),
         ("co-design: speeds for another batch", lambda: codesign.solve_designs(None, [reference] * 3, [0.5, 0.6],
                                                                                 20.0), "one value per design (3)"),
@@ -262,10 +264,12 @@ def _api_rows():
          "iterations must be an integer"),
         ("co-design: inverted ratio bounds", lambda: codesign.co_optimise(None, [reference], 0.5, 20.0,
                                                                           ratio_bounds=(190, 14)), "ratio_bounds"),
-        ("drives: negative supply", lambda: drives.catalogue_drives("RE25-42V", "GP32A-66", -1.0), "supply_voltage"),
+        ("drives: negative supply", lambda: drive_model.catalogue_drives("RE25-42V", "GP32A-66", -1.0),
+         "supply_voltage"),
         ("drives: ragged workspace", lambda: selection.JointWorkspace(np.linspace(0, 1, 5), np.zeros((4, 4)),
                                                                       np.zeros((4, 4)), 1.0), "shape (5, any)"),
-        ("drives: no workspaces", lambda: selection.select_drive([], drives.load_catalogue()), "workspaces is empty"),
+        ("drives: no workspaces", lambda: selection.select_drive([], drive_model.load_catalogue()),
+         "workspaces is empty"),
     ]
 
 
@@ -280,8 +284,8 @@ def _solver_rows(solver, model):
     """(label, call, error type, text): the solver's batch API, each refused before anything compiles."""
     import jax
 
-    from biped_jax.dynamics import hybrid_step as hs
-    from biped_jax.gait import problem as gait
+    from biped_jax.dynamics import hybrid_step
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.multistart import solve_multistart
     from biped_jax.robots.design import design_layout
     n = solver.settings.size
@@ -311,24 +315,27 @@ def _solver_rows(solver, model):
          "1 names, 2 models"),
         ("multistart: no families", lambda: solve_multistart(solver, ["M2"], [model], families=()), ValueError,
          "families is empty"),
-        ("gait_model under jit", lambda: jax.jit(lambda v: gait.gait_model("12kg", v, 20.0).speed)(0.5),
+        ("gait_model under jit", lambda: jax.jit(lambda v: gait_problem.gait_model("12kg", v, 20.0).speed)(0.5),
          TypeError, "speed is traced"),
         ("solver settings", lambda: type(solver)(settings={"spans": 4}), TypeError, "settings must be a GaitSettings"),
-        ("a design that is not one", lambda: hs.with_design(solver.biped, 3), TypeError, "design must be a Design"),
-        ("a biped that is not one", lambda: hs.with_design(3, model.design), TypeError, "biped must be a PlanarBiped"),
+        ("a design that is not one", lambda: hybrid_step.with_design(solver.biped, 3), TypeError,
+         "design must be a Design"),
+        ("a biped that is not one", lambda: hybrid_step.with_design(3, model.design), TypeError,
+         "biped must be a PlanarBiped"),
         ("a layout of no model", lambda: design_layout(3), TypeError, "mj_model must be a mujoco.MjModel"),
-        ("an unknown mass class", lambda: hs.load_planar_biped("20kg"), ValueError, "unknown mass class '20kg'"),
+        ("an unknown mass class", lambda: hybrid_step.load_planar_biped("20kg"), ValueError,
+         "unknown mass class '20kg'"),
     ]
 
 
 def test_the_solver_api_refuses_a_bad_batch_before_compiling():
     import jax.numpy as jnp
 
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
-    solver = GaitSolver(gait.GaitSettings(spans=4, substeps=2))
+    solver = GaitSolver(gait_problem.GaitSettings(spans=4, substeps=2))
     # concrete 0-d arrays are numbers (sweeps build them)
-    model = gait.gait_model("12kg", jnp.asarray(0.5), np.float64(20.0), np.asarray(0.2))
+    model = gait_problem.gait_model("12kg", jnp.asarray(0.5), np.float64(20.0), np.asarray(0.2))
     assert float(model.speed) == 0.5 and float(model.power_limit) == 20.0
     from biped_jax.report.compile_profile import profile_compiles
     with profile_compiles() as profile:

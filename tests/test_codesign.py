@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from biped_jax.codesign import problem as codesign
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.drives.model import GCM2
-from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.dynamics import hybrid_step
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import stack_tree
 from biped_jax.optim import nlp
 
@@ -25,8 +25,8 @@ def test_armature_is_ratio_squared_times_rotor_and_gear_inertia(biped12):
     dof_armature at the four actuated joints, pinned and floating."""
     design = codesign.catalogue_design("RE25-42V", "GP32A-66.22")
     expected = 66.22**2 * (10.7 + 0.7) * GCM2
-    biped = hs.with_design(biped12, codesign.robot_design(design))
-    for model, layout in zip((biped.pinned, biped.floating), hs.planar_layouts()):
+    biped = hybrid_step.with_design(biped12, codesign.robot_design(design))
+    for model, layout in zip((biped.pinned, biped.floating), hybrid_step.planar_layouts()):
         np.testing.assert_allclose(np.asarray(model.dof_armature)[layout.dof_ids], expected, rtol=1e-12)
     assert float(design.total_mass) == pytest.approx(12.0, abs=0.01)  # the structure is built for it
 
@@ -54,11 +54,11 @@ def test_bad_designs_are_rejected_naming_the_value(call, message):
 def test_smooth_gear_efficiency_is_exact_away_from_the_switch():
     torque = jnp.array([2.0, -2.0, 2.0, -2.0, 0.3])
     speed = jnp.array([5.0, -5.0, -5.0, 5.0, 0.2])  # powers 10, 10, -10, -10, 0.06 W
-    exact = drives.motor_torque(torque, speed, 66.0, 0.7)
-    smooth = drives.smooth_motor_torque(torque, speed, 66.0, 0.7)
+    exact = drive_model.motor_torque(torque, speed, 66.0, 0.7)
+    smooth = drive_model.smooth_motor_torque(torque, speed, 66.0, 0.7)
     np.testing.assert_allclose(smooth[:4], exact[:4], rtol=1e-8)
     assert exact[4] * 0.7**2 < smooth[4] < exact[4]  # blended between the two laws near zero power
-    np.testing.assert_allclose(drives.smooth_motor_torque(torque, speed, 66.0, 1.0), torque / 66.0, rtol=1e-15)
+    np.testing.assert_allclose(drive_model.smooth_motor_torque(torque, speed, 66.0, 1.0), torque / 66.0, rtol=1e-15)
 
 
 @pytest.mark.slow
@@ -66,10 +66,10 @@ def test_joule_energy_of_identical_drives_is_a_constant_times_int_u2(paper_solut
     """The paper's objective is the special case: ideal drives give exactly J = int u^T u, identical
     lossless-gear drives R / (k_t N)^2 times it."""
     trajectory = paper_solutions[1].trajectory
-    int_u2 = float(gait.cost(trajectory))
-    assert float(gait.joule_energy(trajectory, drives.ideal_drives())) == pytest.approx(int_u2, rel=1e-12)
+    int_u2 = float(gait_problem.cost(trajectory))
+    assert float(gait_problem.joule_energy(trajectory, drive_model.ideal_drives())) == pytest.approx(int_u2, rel=1e-12)
     design = dataclasses.replace(codesign.catalogue_design(), gear_efficiency=jnp.ones(4))
-    joule = float(gait.joule_energy(trajectory, codesign.joint_drives(design)))
+    joule = float(gait_problem.joule_energy(trajectory, codesign.joint_drives(design)))
     assert joule == pytest.approx(7.05 / (0.0409 * 66.22) ** 2 * int_u2, rel=1e-12)
 
 
@@ -78,13 +78,14 @@ def test_voltage_limit_is_the_speed_torque_line():
     design = codesign.catalogue_design()
     line = codesign.joint_drives(design)
     torque_motor = 0.05  # N m at the motor, motoring
-    motor_speed = float(drives.max_speed_at_torque(torque_motor, drives.load_catalogue().motor("RE25-42V"), 38.0))
+    motor_speed = float(drive_model.max_speed_at_torque(torque_motor, drive_model.load_catalogue().motor("RE25-42V"),
+                                                        38.0))
     joint_torque = torque_motor * 66.22 * 0.7
     joint_speed = motor_speed / 66.22
     # far from the efficiency switch (|T omega| >> 1 W), so the smooth law is the exact one
-    excess = drives.voltage_excess(jnp.full(4, joint_torque), jnp.full(4, joint_speed), line)
+    excess = drive_model.voltage_excess(jnp.full(4, joint_torque), jnp.full(4, joint_speed), line)
     np.testing.assert_allclose(excess, 0.0, atol=1e-9)
-    faster = drives.voltage_excess(jnp.full(4, joint_torque), jnp.full(4, 1.01 * joint_speed), line)
+    faster = drive_model.voltage_excess(jnp.full(4, joint_torque), jnp.full(4, 1.01 * joint_speed), line)
     np.testing.assert_allclose(faster, 0.0409 * 0.01 * motor_speed, rtol=1e-9)  # back-EMF of the extra 1 %
 
 
@@ -115,10 +116,10 @@ def test_a_batch_of_designs_converges_and_identical_designs_agree(design_solver,
         assert record["peak_joint_power_W"] <= POWER_LIMIT + 1e-4
     # the refinement check weighs the problem's own objective, the Joule energy, on the 4x grid (not
     # the integral of u^T u, which differs by R / (k_t N)^2 and the gear's efficiency)
-    model = codesign.gait_model(designs[1], SPEED, POWER_LIMIT)
+    model = codesign.design_gait_model(designs[1], SPEED, POWER_LIMIT)
     fine = jax.tree.map(lambda a: a[0], design_solver.simulate_refined(
         solutions[1].x[None], stack_tree([model])))
-    joule, int_u2 = float(gait.joule_energy(fine, model.drives)), float(gait.cost(fine))
+    joule, int_u2 = float(gait_problem.joule_energy(fine, model.drives)), float(gait_problem.cost(fine))
     assert solutions[1].refinement["cost"] == pytest.approx(joule, rel=1e-12)
     assert abs(joule / int_u2 - 1) > 0.05
     # the same design in another batch (four copies) solves to the same gait: designs do not interact

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from biped_jax.donald import model as donald
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.studies import donald as donald_study
 
 STEPS = 2  # one compiled walker (2 steps) serves every test here
@@ -66,10 +66,10 @@ def test_pd_loop_holds_the_pendulum_with_the_expected_stiffness(standing):
 def test_drive_limits_follow_the_motor_line():
     """Torque limits from the datasheet numbers: k_t (+-V - k_t N omega) / R through the gear."""
     drive = donald.donald_drive()
-    motor = drives.load_catalogue().motors[donald.DONALD_MOTOR]
+    motor = drive_model.load_catalogue().motors[donald.DONALD_MOTOR]
     n, eta, v = 245.96, 0.60, donald.DONALD_SUPPLY_VOLTAGE
     speed = jnp.array([0.0, 1.0, 3.0, 3.9, 4.5, -2.0])
-    low, high = (np.asarray(a) for a in drives.torque_limits(drive, speed))
+    low, high = (np.asarray(a) for a in drive_model.torque_limits(drive, speed))
     omega_m = n * np.asarray(speed)
     motor_high = motor.torque_constant * (v - motor.torque_constant * omega_m) / motor.resistance
     motor_low = motor.torque_constant * (-v - motor.torque_constant * omega_m) / motor.resistance
@@ -79,11 +79,11 @@ def test_drive_limits_follow_the_motor_line():
     np.testing.assert_allclose(low, expected_low, rtol=1e-12)
     # at the no-load speed the drive gives no more torque forward
     no_load = v / motor.torque_constant / n
-    assert float(drives.torque_limits(drive, jnp.asarray(no_load))[1]) == pytest.approx(0.0, abs=1e-9)
+    assert float(drive_model.torque_limits(drive, jnp.asarray(no_load))[1]) == pytest.approx(0.0, abs=1e-9)
     # the PD command is applied inside the limits and clipped onto them outside
     applied, command, _ = donald.pd_torque(donald.DEFAULT_GAINS, drive, jnp.zeros(5), jnp.full(5, 3.9),
                                            jnp.full(5, 0.2), jnp.full(5, 3.9))
-    limit = float(drives.torque_limits(drive, jnp.asarray(3.9))[1])
+    limit = float(drive_model.torque_limits(drive, jnp.asarray(3.9))[1])
     expected = np.minimum(np.asarray(command), limit)
     np.testing.assert_allclose(applied, expected, rtol=1e-12)
     assert np.any(np.asarray(command) > limit)  # the test exercises saturation

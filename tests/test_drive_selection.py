@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.drives import selection as ds
 
-CATALOGUE = drives.load_catalogue()
+CATALOGUE = drive_model.load_catalogue()
 
 
 def _constant_workspace(torque=1.0, speed=5.0, samples=200):
@@ -22,8 +22,8 @@ def test_requirements_drop_the_impact_spikes_by_the_documented_rule():
     r = ds.requirements(w)
     assert r["max_torque_Nm"] == pytest.approx(1.0)
     assert r["max_torque_with_impacts_Nm"] == pytest.approx(10.0)
-    assert r["max_rpm"] == pytest.approx(5.0 / drives.RPM)
-    assert r["max_rpm_with_impacts"] == pytest.approx(50.0 / drives.RPM)
+    assert r["max_rpm"] == pytest.approx(5.0 / drive_model.RPM)
+    assert r["max_rpm_with_impacts"] == pytest.approx(50.0 / drive_model.RPM)
     assert r["operational_torque_Nm"] == pytest.approx([1.0, 1.0])
     assert r["max_power_W"] == pytest.approx(5.0)
 

@@ -7,9 +7,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 
-CATALOGUE = drives.load_catalogue()
+CATALOGUE = drive_model.load_catalogue()
 RE25_24V = CATALOGUE.motor("RE25-118752")
 
 
@@ -17,16 +17,16 @@ def test_stall_torque_and_no_load_speed_match_the_datasheet():
     """k_t V / R and V / k_t at the nominal 24 V against the datasheet's 243 mNm and 9560 rpm: the
     datasheet's no-load speed is 2.4 % below the ideal motor's (friction and brush drop, which the
     model leaves out; the ideal line errs on the optimistic side by that much)."""
-    stall = drives.stall_torque(RE25_24V, 24.0)
-    assert stall / drives.MNM == pytest.approx(243.0, rel=0.01)
-    no_load = drives.no_load_speed(RE25_24V, 24.0) / drives.RPM
+    stall = drive_model.stall_torque(RE25_24V, 24.0)
+    assert stall / drive_model.MNM == pytest.approx(243.0, rel=0.01)
+    no_load = drive_model.no_load_speed(RE25_24V, 24.0) / drive_model.RPM
     assert no_load == pytest.approx(9560.0, rel=0.03)
     assert no_load == pytest.approx(408.0 * 24.0, rel=0.01)  # k_n V
 
 
 def test_speed_torque_gradient_matches_the_datasheet():
     """R / k_t^2 in rpm/mNm against the datasheet's 40.3 rpm/mNm."""
-    gradient = drives.speed_torque_gradient(RE25_24V) * drives.MNM / drives.RPM
+    gradient = drive_model.speed_torque_gradient(RE25_24V) * drive_model.MNM / drive_model.RPM
     assert gradient == pytest.approx(40.3, rel=0.01)
 
 
@@ -35,24 +35,24 @@ def test_electrical_power_is_mechanical_power_plus_joule_loss_everywhere():
     torque = jnp.asarray(rng.normal(scale=0.1, size=200))
     speed = jnp.asarray(rng.normal(scale=800.0, size=200))
     for motor in CATALOGUE.motors.values():
-        p_el = drives.electrical_power(torque, speed, motor)
-        np.testing.assert_allclose(p_el, torque * speed + drives.joule_loss(torque, motor), rtol=1e-12,
+        p_el = drive_model.electrical_power(torque, speed, motor)
+        np.testing.assert_allclose(p_el, torque * speed + drive_model.joule_loss(torque, motor), rtol=1e-12,
                                    atol=1e-12)
 
 
 def test_supply_voltage_scales_the_characteristic_line_as_eq_2_5():
     """n_mV = n_m V_s / V_m; the stall torque scales the same way; the slope does not change."""
     for motor in CATALOGUE.motors.values():
-        rated = drives.no_load_speed(motor, motor.nominal_voltage)
-        assert drives.no_load_speed(motor, 38.0) == pytest.approx(rated * 38.0 / motor.nominal_voltage)
-        line = lambda t, v: drives.max_speed_at_torque(t, motor, v)  # noqa: E731
+        rated = drive_model.no_load_speed(motor, motor.nominal_voltage)
+        assert drive_model.no_load_speed(motor, 38.0) == pytest.approx(rated * 38.0 / motor.nominal_voltage)
+        line = lambda t, v: drive_model.max_speed_at_torque(t, motor, v)  # noqa: E731
         assert float(line(0.05, 38.0) - line(0.10, 38.0)) == pytest.approx(
             float(line(0.05, 24.0) - line(0.10, 24.0)))
         # on the line the voltage needed equals the supply
-        torque = 0.3 * drives.stall_torque(motor, 38.0)
+        torque = 0.3 * drive_model.stall_torque(motor, 38.0)
         speed = line(torque, 38.0)
-        assert float(drives.voltage(torque, speed, motor)) == pytest.approx(38.0, rel=1e-12)
-        assert float(drives.voltage_margin(torque, 0.9 * speed, motor, 38.0)) > 0
+        assert float(drive_model.voltage(torque, speed, motor)) == pytest.approx(38.0, rel=1e-12)
+        assert float(drive_model.voltage_margin(torque, 0.9 * speed, motor, 38.0)) > 0
 
 
 def test_estimated_windings_follow_the_spec_table_at_38_volts():
@@ -61,18 +61,18 @@ def test_estimated_windings_follow_the_spec_table_at_38_volts():
     expected = {"RE25-30V": (12400, 309), "RE25-42V": (8860, 221), "RE25-48V": (7750, 193)}
     for part, (speed_rpm, stall_mnm) in expected.items():
         motor = CATALOGUE.motor(part)
-        assert drives.no_load_speed(motor, 38.0) / drives.RPM == pytest.approx(speed_rpm, rel=0.01)
-        assert drives.stall_torque(motor, 38.0) / drives.MNM == pytest.approx(stall_mnm, rel=0.01)
+        assert drive_model.no_load_speed(motor, 38.0) / drive_model.RPM == pytest.approx(speed_rpm, rel=0.01)
+        assert drive_model.stall_torque(motor, 38.0) / drive_model.MNM == pytest.approx(stall_mnm, rel=0.01)
 
 
 def test_gear_reflects_torque_with_efficiency_depending_on_power_flow():
     gear = CATALOGUE.gearhead("GP32A-66.22")
     # motoring: the motor supplies the losses; back-driving: the load does
-    assert float(drives.motor_torque(2.0, 1.0, gear.ratio, gear.efficiency)) == pytest.approx(
+    assert float(drive_model.motor_torque(2.0, 1.0, gear.ratio, gear.efficiency)) == pytest.approx(
         2.0 / (66.22 * 0.7))
-    assert float(drives.motor_torque(2.0, -1.0, gear.ratio, gear.efficiency)) == pytest.approx(
+    assert float(drive_model.motor_torque(2.0, -1.0, gear.ratio, gear.efficiency)) == pytest.approx(
         2.0 * 0.7 / 66.22)
-    assert float(drives.motor_speed(1.5, gear.ratio)) == pytest.approx(99.33)
+    assert float(drive_model.motor_speed(1.5, gear.ratio)) == pytest.approx(99.33)
 
 
 def test_drive_model_is_differentiable():
@@ -80,7 +80,7 @@ def test_drive_model_is_differentiable():
     motor = CATALOGUE.motor("RE25-42V")
 
     def joule(ratio):
-        return drives.joule_loss(drives.motor_torque(3.0, 5.0, ratio, gear.efficiency), motor)
+        return drive_model.joule_loss(drive_model.motor_torque(3.0, 5.0, ratio, gear.efficiency), motor)
     # P_J ~ 1 / N^2, so d P_J / d N = -2 P_J / N
     assert float(jax.grad(joule)(66.0)) == pytest.approx(-2 * float(joule(66.0)) / 66.0, rel=1e-10)
 
@@ -110,4 +110,4 @@ def test_unknown_parts_and_bad_ratios_are_rejected():
         CATALOGUE.gearhead("GP32A-67")
     for ratio in (0.0, -66.0, float("inf")):
         with pytest.raises(ValueError, match="gear ratio"):
-            drives.check_ratio(ratio)
+            drive_model.check_ratio(ratio)

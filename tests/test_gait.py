@@ -11,8 +11,8 @@ import pytest
 from conftest import short_settings
 
 from biped_jax.drives.model import RPM
-from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.dynamics import hybrid_step
+from biped_jax.gait import problem as gait_problem
 from biped_jax.robots import planar_biped
 from biped_jax.gait import report as gait_report
 from biped_jax.gait import multistart
@@ -45,39 +45,39 @@ def m2_solution(paper_solutions):
 def test_bad_problem_data_is_rejected(arguments, message):
     values = dict(mass_class="12kg", speed=0.555, power_limit=20.0) | arguments
     with pytest.raises(ValueError, match=message):
-        gait.gait_model(**values)
+        gait_problem.gait_model(**values)
 
 
 def test_reach_follows_the_robots_legs():
     """Kelly's biped has 0.8 m legs: a 0.7 m step is fine there, 1.6 m is not."""
-    assert float(gait.gait_model("kelly", 0.7, 1e6, step_length=0.7).step_length) == 0.7
+    assert float(gait_problem.gait_model("kelly", 0.7, 1e6, step_length=0.7).step_length) == 0.7
     with pytest.raises(ValueError, match="1.6 m is beyond the legs' reach"):
-        gait.gait_model("kelly", 0.7, 1e6, step_length=1.6)
+        gait_problem.gait_model("kelly", 0.7, 1e6, step_length=1.6)
 
 
 def test_kellys_benchmark_poses_its_problem():
     """biped_jax.studies.kelly imports and poses Kelly's problem (its "no friction limit" is a setting the
     checks accept: an import-time ValueError once broke `biped-jax kelly` without a test noticing)."""
     from biped_jax.studies import kelly
-    assert kelly.KELLY_SETTINGS.friction == gait.NO_FRICTION_LIMIT
+    assert kelly.KELLY_SETTINGS.friction == gait_problem.NO_FRICTION_LIMIT
     model = kelly.kelly_model()
     assert float(model.speed) == pytest.approx(0.5 / 0.7) and float(model.step_length) == 0.5
     with pytest.raises(ValueError, match="friction"):
-        gait.GaitSettings(friction=2e3)
+        gait_problem.GaitSettings(friction=2e3)
 
 
 def test_unknown_mass_class_is_rejected():
     with pytest.raises(ValueError, match="'15kg'"):
-        gait.gait_model("15kg", 0.5, 20.0)
+        gait_problem.gait_model("15kg", 0.5, 20.0)
 
 
 @pytest.fixture(scope="module")
 def heuristic(solver):
     """M2's heuristic start simulated with the solver's compiled rollout (batch of four copies, the
     shape the paper fixture compiled)."""
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     batch = jax.tree.map(lambda a: jnp.asarray(jnp.stack([a] * 4), dtype=float), model)
-    x = jax.jit(jax.vmap(lambda m: gait.initial_guess(m, SETTINGS)))(batch)
+    x = jax.jit(jax.vmap(lambda m: gait_problem.initial_guess(m, SETTINGS)))(batch)
     return model, x[0], jax.tree.map(lambda a: np.asarray(a[0]), solver.simulate(x, batch))
 
 
@@ -92,7 +92,8 @@ def test_report_checks_a_batch_of_designs_and_sizes_in_one_program(solver, heuri
         model, speed=jnp.asarray(0.5 + 0.01 * k),
         design=dataclasses.replace(model.design, link_mass=model.design.link_mass * (1 + 0.02 * k)))
         for k in range(5)])
-    direct = jax.jit(jax.vmap(lambda x_, m: gait.simulate(x_, m, solver.biped, SETTINGS)))(jnp.asarray(xs), models)
+    direct = jax.jit(jax.vmap(lambda x_, m: gait_problem.simulate(x_, m, solver.biped, SETTINGS)))(jnp.asarray(xs),
+                                                                                                   models)
     program = solver._checks[SETTINGS]
     before = program._cache_size()
     five, one = solver.check(xs, models), solver.check(xs[:1], jax.tree.map(lambda a: a[:1], models))
@@ -104,10 +105,10 @@ def test_report_checks_a_batch_of_designs_and_sizes_in_one_program(solver, heuri
     for k in (0, 3):
         row = jax.tree.map(lambda a: a[k], direct)
         model_k = jax.tree.map(lambda a: a[k], models)
-        groups = gait.violations(gait.constraint_groups(row, model_k, SETTINGS))
+        groups = gait_problem.violations(gait_problem.constraint_groups(row, model_k, SETTINGS))
         for name, value in groups.items():
             assert five.violations[name][k] == pytest.approx(float(value), rel=1e-9, abs=1e-12), name
-        assert five.energy[k] == pytest.approx(float(gait.cost(row)), rel=1e-12)
+        assert five.energy[k] == pytest.approx(float(gait_problem.cost(row)), rel=1e-12)
     assert five.finite.all()
 
 
@@ -118,15 +119,15 @@ def test_prescribed_joints_follow_the_spline_and_the_torques_give_its_accelerati
     too); relabelling makes the actuated positions periodic by construction."""
     model, x, trajectory = heuristic
     step_time = float(model.step_length / model.speed)
-    s = gait.grid(SETTINGS)
-    q, dq, ddq = (np.asarray(r) for r in gait.reference(x, SETTINGS, s))
+    s = gait_problem.grid(SETTINGS)
+    q, dq, ddq = (np.asarray(r) for r in gait_problem.reference(x, SETTINGS, s))
     a = planar_biped.ACTUATED_INDEX
     np.testing.assert_allclose(trajectory.q[:, a], q, atol=1e-12)
     np.testing.assert_allclose(trajectory.qd[:, a], dq / step_time, atol=1e-10)
     np.testing.assert_allclose(trajectory.qdd[:, a], ddq / step_time**2, atol=1e-8)
     np.testing.assert_allclose(trajectory.touchdown.q[a], trajectory.q[0, a], atol=1e-12)
-    pinned = hs.with_design(solver.biped, model.design).pinned
-    forward = jax.jit(jax.vmap(hs.stance_acceleration, (None, 0, 0, 0)))
+    pinned = hybrid_step.with_design(solver.biped, model.design).pinned
+    forward = jax.jit(jax.vmap(hybrid_step.stance_acceleration, (None, 0, 0, 0)))
     qdd = forward(pinned, trajectory.q, trajectory.qd, trajectory.u)
     np.testing.assert_allclose(qdd, trajectory.qdd, rtol=1e-9, atol=1e-8)
 
@@ -137,12 +138,12 @@ def test_start_state_and_first_sample_are_consistent(solver, heuristic):
     sample's ground force is Newton-Euler's at that state and acceleration (no deadbeat sample)."""
     model, x, trajectory = heuristic
     step_time = float(model.step_length / model.speed)
-    q0, dq0, _ = (np.asarray(r)[0] for r in gait.reference(x, SETTINGS, np.zeros(1)))
+    q0, dq0, _ = (np.asarray(r)[0] for r in gait_problem.reference(x, SETTINGS, np.zeros(1)))
     np.testing.assert_allclose(trajectory.q[0], np.r_[x[0], q0[[1, 0, 2, 3]]], atol=1e-12)
     np.testing.assert_allclose(trajectory.qd[0, planar_biped.ACTUATED_INDEX], dq0 / step_time, atol=1e-12)
     assert trajectory.qd[0, 0] == pytest.approx(float(x[1]))
-    pinned = hs.with_design(solver.biped, model.design).pinned
-    force = jax.jit(hs.ground_reaction)(pinned, trajectory.q[0], trajectory.qd[0], trajectory.qdd[0])
+    pinned = hybrid_step.with_design(solver.biped, model.design).pinned
+    force = jax.jit(hybrid_step.ground_reaction)(pinned, trajectory.q[0], trajectory.qd[0], trajectory.qdd[0])
     np.testing.assert_allclose(trajectory.ground_force[0], force, rtol=1e-9, atol=1e-8)
 
 
@@ -152,14 +153,15 @@ def test_integrator_and_quadrature_converge_at_fourth_order(biped12):
     touchdown and J converge at the 4th order of RK4 and Simpson (each halving divides the error by
     about 16). Single shooting: the whole step one integration from the start state (a heuristic start
     is not continuous across shooting nodes)."""
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     single_shot = dataclasses.replace(SETTINGS, segments=1)
-    x = gait.initial_guess(model, single_shot, family=gait.START_FAMILIES[1])
+    x = gait_problem.initial_guess(model, single_shot, family=gait_problem.START_FAMILIES[1])
     results = {}
     for substeps in (2, 4, 8, 16, 64):
         settings = dataclasses.replace(single_shot, substeps=substeps)
-        trajectory = jax.jit(lambda x_: gait.simulate(x_, model, biped12, settings))(x)
-        results[substeps] = (float(trajectory.q[-1, 0]), float(trajectory.qd[-1, 0]), float(gait.cost(trajectory)))
+        trajectory = jax.jit(lambda x_: gait_problem.simulate(x_, model, biped12, settings))(x)
+        results[substeps] = (float(trajectory.q[-1, 0]), float(trajectory.qd[-1, 0]),
+                             float(gait_problem.cost(trajectory)))
     exact = np.array(results[64])
     errors = np.array([np.abs(np.array(results[n]) - exact) for n in (2, 4, 8, 16)])
     ratios = errors[:-1] / errors[1:]
@@ -174,20 +176,20 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
     """Every solution carries J and the violations on a grid four times finer; the check fails when J
     moves by more than 0.5 % or the power limit is broken there by more than 1 % of M_W."""
     check = m2_solution.refinement
-    assert check["steps"] == gait.REFINEMENT * SETTINGS.steps == solver.refined_settings.steps
-    assert set(check["violations"]) == set(gait.CONSTRAINT_GROUPS)
+    assert check["steps"] == gait_problem.REFINEMENT * SETTINGS.steps == solver.refined_settings.steps
+    assert set(check["violations"]) == set(gait_problem.CONSTRAINT_GROUPS)
     assert check["passed"] == (not check["failed"])
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     batch = gait_solver.stack_tree([model] * 4)
     fine = solver.check(jnp.asarray(np.tile(m2_solution.x, (4, 1))), batch, refined=True)
     trajectory = jax.tree.map(lambda a: a[0], fine.trajectory)
-    assert check["cost"] == pytest.approx(float(gait.cost(trajectory)), rel=1e-12)
+    assert check["cost"] == pytest.approx(float(gait_problem.cost(trajectory)), rel=1e-12)
     first = jax.tree.map(lambda a: a[:1], fine)
     steps = solver.refined_settings.steps
     moved, = verdict.refinement_records([1.01 * check["cost"]], first, [20.0], steps)
     assert not moved["passed"] and moved["failed"][0] == "cost"
     # a gait that fails the check is not converged (the study's solvers enforce it)
-    feasible = {k: 0.0 for k in gait.CONSTRAINT_GROUPS}
+    feasible = {k: 0.0 for k in gait_problem.CONSTRAINT_GROUPS}
     assert verdict.classify(nlp.CONVERGED, True, feasible, moved) == verdict.GRID_DEPENDENT
     assert verdict.classify(nlp.CONVERGED, True, feasible, moved, require_refinement=False) == nlp.CONVERGED
     assert verdict.classify(nlp.CONVERGED, True, feasible, {"passed": True}) == nlp.CONVERGED
@@ -196,7 +198,7 @@ def test_refinement_check_flags_a_grid_dependent_gait(m2_solution, solver):
                                 {"passed": True}) == nlp.ITERATION_LIMIT
     tight = 0.5 * float(np.max(np.abs(trajectory.joint_power)))
     broken, = verdict.refinement_records([check["cost"]], solver.check(
-        jnp.asarray(m2_solution.x[None]), gait_solver.stack_tree([gait.gait_model("12kg", 0.555, tight)]),
+        jnp.asarray(m2_solution.x[None]), gait_solver.stack_tree([gait_problem.gait_model("12kg", 0.555, tight)]),
         refined=True), [tight], steps)
     assert "power_limit" in broken["failed"] and broken["power_margin_fraction"] > 0.01
     # each row of a batch is judged on its own numbers: the tight row fails, the others do not move
@@ -218,7 +220,7 @@ def test_short_horizon_gaits_of_all_four_models_converge_in_one_batch(paper_solu
 @pytest.mark.slow
 def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solution):
     solution = m2_solution
-    assert set(solution.violations) == set(gait.CONSTRAINT_GROUPS)
+    assert set(solution.violations) == set(gait_problem.CONSTRAINT_GROUPS)
     assert max(solution.violations.values()) <= verdict.VIOLATION_TOLERANCE
     trajectory = solution.trajectory
     # Independently of the solver's bookkeeping: the touchdown lands L ahead, the power limit holds at
@@ -239,8 +241,8 @@ def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solut
 def test_multistart_reports_the_spread_and_keeps_the_best(solver):
     """Four start families of M2 in one batch (the program the paper fixture compiled); the cheapest
     feasible one is kept and every start is listed."""
-    model = gait.gait_model("12kg", 0.555, 20.0)
-    families = gait.START_FAMILIES[:4]
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
+    families = gait_problem.START_FAMILIES[:4]
     ends = []
     solution, = multistart.solve_multistart(solver, ["M2"], [model], families=families,
                                              finished=lambda stage, count: ends.append((stage, count)))
@@ -294,21 +296,22 @@ def test_bad_settings_are_rejected(changes, message):
 def test_projection_into_a_finer_space_keeps_the_curve(biped12):
     """Continuation: a coarse-space curve carried into a space with nested knots is the same curve."""
     fine = dataclasses.replace(SETTINGS, spans=8, segments=8)  # and into multiple shooting
-    model = gait.gait_model("12kg", 0.555, 20.0)
-    x = np.asarray(gait.initial_guess(model, SETTINGS, family=gait.START_FAMILIES[2]))
-    trajectory = jax.jit(lambda x_: gait.simulate(x_, model, biped12, SETTINGS))(x)
-    projected = gait.project(x, SETTINGS, fine, trajectory)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
+    x = np.asarray(gait_problem.initial_guess(model, SETTINGS, family=gait_problem.START_FAMILIES[2]))
+    trajectory = jax.jit(lambda x_: gait_problem.simulate(x_, model, biped12, SETTINGS))(x)
+    projected = gait_problem.project(x, SETTINGS, fine, trajectory)
     s = np.linspace(0, 1, 57)
-    for a, b in zip(gait.reference(jnp.asarray(x), SETTINGS, s), gait.reference(jnp.asarray(projected), fine, s)):
+    for a, b in zip(gait_problem.reference(jnp.asarray(x), SETTINGS, s), gait_problem.reference(jnp.asarray(projected),
+                                                                                                fine, s)):
         np.testing.assert_allclose(a, b, atol=1e-9)
     # the shooting nodes: the coarse trajectory's stance state at the fine span starts (on its grid
     # where the spans coincide, interpolated in between)
-    nodes = np.asarray(gait.stance_nodes(jnp.asarray(projected), fine))
+    nodes = np.asarray(gait_problem.stance_nodes(jnp.asarray(projected), fine))
     on_grid = np.arange(SETTINGS.spans) * SETTINGS.substeps
     stance = np.stack([np.asarray(trajectory.q)[:, 0], np.asarray(trajectory.qd)[:, 0]], axis=-1)
     np.testing.assert_allclose(nodes[::2], stance[on_grid], atol=1e-12)
-    dense = jax.jit(lambda x_: gait.simulate(x_, model, biped12, dataclasses.replace(SETTINGS, substeps=64)))(x)
-    between = gait.breakpoints(fine)[1::2] * float(dense.t[-1])
+    dense = jax.jit(lambda x_: gait_problem.simulate(x_, model, biped12, dataclasses.replace(SETTINGS, substeps=64)))(x)
+    between = gait_problem.breakpoints(fine)[1::2] * float(dense.t[-1])
     for k, series in enumerate((dense.q[:, 0], dense.qd[:, 0])):
         np.testing.assert_allclose(nodes[1::2, k], np.interp(between, dense.t, series), atol=1e-3)
 
@@ -335,10 +338,10 @@ def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_
     point's derivatives start from) against central differences of the same function evaluated with
     MuJoCo C."""
     from biped_jax.gait.mujoco_reference import CGaitRollout
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     rollout = CGaitRollout("12kg", SETTINGS)
     x = np.asarray(m2_solution.x) + 0.01 * np.cos(np.arange(SETTINGS.size))  # off the optimum
-    h_size, g_size = (a.size for a in gait.scaled_constraints(gait.constraint_groups(
+    h_size, g_size = (a.size for a in gait_problem.scaled_constraints(gait_problem.constraint_groups(
         m2_solution.trajectory, model, SETTINGS)))
     lam_eq, lam_in = 0.3 * np.ones(h_size), 0.2 * np.ones(g_size)
 
@@ -347,8 +350,8 @@ def test_lagrangian_gradient_matches_central_differences_of_mujoco_c(solver, m2_
 
     def lagrangian_c(x_):
         trajectory = rollout.simulate(x_, 0.555, 0.2)
-        h, g = gait.scaled_constraints(gait.constraint_groups(trajectory, model, SETTINGS))
-        return float(lagrangian(gait.cost(trajectory), h, g))
+        h, g = gait_problem.scaled_constraints(gait_problem.constraint_groups(trajectory, model, SETTINGS))
+        return float(lagrangian(gait_problem.cost(trajectory), h, g))
 
     value, gradient = jax.jit(jax.value_and_grad(lambda x_: lagrangian(*solver.problem.evaluate(x_, model))))(
         jnp.asarray(x))
@@ -364,27 +367,27 @@ def test_multiple_shooting_reproduces_single_shooting_and_reports_its_defects(bi
     """A multiple-shot step whose nodes lie on the single-shot trajectory is that trajectory (the
     defects vanish); a node moved off it shows up as exactly that defect, the same in MuJoCo C."""
     from biped_jax.gait.mujoco_reference import CGaitRollout
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     single_shot = dataclasses.replace(SETTINGS, segments=1)
     multi = dataclasses.replace(SETTINGS, segments=SETTINGS.spans)
-    x = gait.initial_guess(model, single_shot, family=gait.START_FAMILIES[1])
-    single = jax.jit(lambda x_: gait.simulate(x_, model, biped12, single_shot))(x)
+    x = gait_problem.initial_guess(model, single_shot, family=gait_problem.START_FAMILIES[1])
+    single = jax.jit(lambda x_: gait_problem.simulate(x_, model, biped12, single_shot))(x)
     starts = np.arange(multi.segments) * (multi.steps // multi.segments)
     nodes = np.stack([np.asarray(single.q)[starts, 0], np.asarray(single.qd)[starts, 0]], axis=-1)
-    x_multi = gait.pack(nodes, gait.control_points(x, single_shot)[1:])
+    x_multi = gait_problem.pack(nodes, gait_problem.control_points(x, single_shot)[1:])
     assert x_multi.shape == (multi.size,) == (single_shot.size + 2 * (multi.segments - 1),)
-    simulate = jax.jit(lambda x_: gait.simulate(x_, model, biped12, multi))
+    simulate = jax.jit(lambda x_: gait_problem.simulate(x_, model, biped12, multi))
     shot = simulate(x_multi)
     for name in ("q", "qd", "u", "ground_force"):
         np.testing.assert_allclose(getattr(shot, name), getattr(single, name), atol=1e-12, err_msg=name)
     np.testing.assert_allclose(shot.continuity, 0.0, atol=1e-12)
-    assert float(gait.cost(shot)) == pytest.approx(float(gait.cost(single)), rel=1e-12)
+    assert float(gait_problem.cost(shot)) == pytest.approx(float(gait_problem.cost(single)), rel=1e-12)
     moved = np.asarray(x_multi).copy()
     moved[-2:] += np.array([0.01, -0.2])  # the last node's stance angle and rate
     shot = simulate(jnp.asarray(moved))
     np.testing.assert_allclose(shot.continuity[-1], [-0.01, 0.2], atol=1e-12)
     np.testing.assert_allclose(shot.continuity[:-1], 0.0, atol=1e-12)
-    groups = gait.violations(gait.constraint_groups(shot, model, multi))
+    groups = gait_problem.violations(gait_problem.constraint_groups(shot, model, multi))
     assert float(groups["continuity_angle"]) == pytest.approx(0.01)
     assert float(groups["continuity_rate"]) == pytest.approx(0.2)
     reference = CGaitRollout("12kg", multi).simulate(moved, 0.555, 0.2)
@@ -402,10 +405,10 @@ def test_shooting_segments_must_divide_the_spans():
 def test_start_family_can_land_on_a_flexed_stance_knee():
     """``impact_knee`` flexes the stance knee at touchdown and, by the mirror, the swing knee at the
     start; the default families keep both straight."""
-    model = gait.gait_model("12kg", 0.555, 20.0)
-    family = dataclasses.replace(gait.START_FAMILIES[2], impact_knee=0.3)
-    for chosen, knee in ((family, 0.3), (gait.START_FAMILIES[2], 0.0)):
-        x = gait.initial_guess(model, SETTINGS, family=chosen)
-        q = np.asarray(gait.reference(x, SETTINGS, np.array([0.0, 1.0]))[0])  # (H1, K1, H2, K2) at 0, t_f
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
+    family = dataclasses.replace(gait_problem.START_FAMILIES[2], impact_knee=0.3)
+    for chosen, knee in ((family, 0.3), (gait_problem.START_FAMILIES[2], 0.0)):
+        x = gait_problem.initial_guess(model, SETTINGS, family=chosen)
+        q = np.asarray(gait_problem.reference(x, SETTINGS, np.array([0.0, 1.0]))[0])  # (H1, K1, H2, K2) at 0, t_f
         assert q[1, 1] == pytest.approx(knee, abs=1e-12) and q[0, 3] == pytest.approx(knee, abs=1e-12)
         assert q[0, 1] == pytest.approx(0.0, abs=1e-12)

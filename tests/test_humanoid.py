@@ -12,8 +12,8 @@ from conftest import short_settings
 from test_humanoid_sagittal import _sagittal_equivalent
 
 from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.dynamics import hybrid_step
+from biped_jax.gait import problem as gait_problem
 from biped_jax import humanoid
 from biped_jax.robots import registry as robots
 from biped_jax.robots.specs import PLANAR_SPECS
@@ -68,7 +68,7 @@ def test_impact_map_on_the_humanoid_equals_the_optimisers(planarised):
     qfd = np.array([0.6, -0.2, -0.4, 1.5, -2.0, -3.0, 1.0])
     # put the landing foot (leg 2) on the ground
     # compiled (MJX run op by op compiles every operation alone)
-    qf[1] -= float(jax.jit(hs.site_position, static_argnums=2)(floating, jnp.asarray(qf), "foot2")[2])
+    qf[1] -= float(jax.jit(hybrid_step.site_position, static_argnums=2)(floating, jnp.asarray(qf), "foot2")[2])
     expected_after, expected_impulse = (np.asarray(a) for a in jax.jit(impact.impact_map)(
         floating, jnp.asarray(qf), jnp.asarray(qfd)))
     qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
@@ -83,10 +83,10 @@ def test_impact_map_on_the_humanoid_equals_the_optimisers(planarised):
 def m2_reference(short_solver):
     """M2's heuristic start simulated at the tests' horizon with the solver's compiled rollout (its stance
     angle advances monotonically; the short-horizon optimum's does not, see test_bad_input_is_rejected)."""
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     settings = short_solver.settings
     batch = jax.tree.map(lambda a: jnp.asarray(a, dtype=jnp.result_type(float))[None], model)
-    x = gait.initial_guess(model, settings, leg_length=PLANAR_SPECS["12kg"].leg_length)
+    x = gait_problem.initial_guess(model, settings, leg_length=PLANAR_SPECS["12kg"].leg_length)
     trajectory = jax.tree.map(lambda a: np.asarray(a[0]), short_solver.simulate(x[None], batch))
     return x, model, settings, trajectory, humanoid.gait_reference(x, model, settings, trajectory)
 
@@ -99,7 +99,7 @@ def test_reference_follows_the_simulated_gait(m2_reference):
     theta = np.interp(phase, np.asarray(reference.phase), np.asarray(reference.stance_angle))
     np.testing.assert_allclose(theta, np.asarray(tr.q)[:, 0], atol=1e-3)
     # the stance leg's path is the optimiser's (only the swing foot's clearance is added)
-    optimal = np.asarray(gait.reference(jnp.asarray(x), settings, np.asarray(reference.phase))[0])
+    optimal = np.asarray(gait_problem.reference(jnp.asarray(x), settings, np.asarray(reference.phase))[0])
     np.testing.assert_allclose(np.asarray(reference.joints)[:, :2], optimal[:, :2], atol=1e-12)
     swing_offset = np.abs(np.asarray(reference.joints)[:, 2:] - optimal[:, 2:])
     # none at the start (the swing foot leaves the ground); bounded elsewhere (the heuristic's foot even
@@ -136,7 +136,7 @@ def test_bad_input_is_rejected(m2_reference, paper_solutions):
     middle = len(q) // 2
     q[middle:, 0] = q[middle, 0] - 0.1 * (q[middle:, 0] - q[middle, 0])
     rocking = dataclasses.replace(solution.trajectory, q=q)
-    model = gait.gait_model("12kg", solution.speed_mps, solution.power_limit_W)
+    model = gait_problem.gait_model("12kg", solution.speed_mps, solution.power_limit_W)
     with pytest.raises(ValueError, match="monotonically"):
         humanoid.gait_reference(solution.x, model, short_settings(), rocking)
 
@@ -193,8 +193,8 @@ def test_isolated_touchdown_balances_momentum_and_stops_the_foot(planarised):
     floating = robots.put_mjx_model(planar)
     qf = np.array([0.05, 0.27, 0.0, 0.3, 1.2, -0.3, 0.1])  # leg 2 reaching ahead, leg 1 folded up
     qfd = np.array([0.6, -0.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # the whole robot moving forward and down
-    qf[1] -= float(hs.site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
-    assert float(hs.site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
+    qf[1] -= float(hybrid_step.site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
+    assert float(hybrid_step.site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
     qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
     columns = humanoid.sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd

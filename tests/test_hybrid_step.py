@@ -11,7 +11,7 @@ import pytest
 from conftest import GRADIENT_START, GRADIENT_STEPS, ROLLOUT_STEPS
 
 from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step
 from biped_jax.dynamics import planar_chain
 from biped_jax.robots import planar_biped
 from biped_jax.robots import registry as robots
@@ -63,7 +63,7 @@ def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollo
 
     errors = {}
     for dt, steps in ((1e-3, ROLLOUT_STEPS // 2), (5e-4, ROLLOUT_STEPS)):
-        model = hs.with_timestep(biped12.pinned, dt)
+        model = hybrid_step.with_timestep(biped12.pinned, dt)
         trajectory = rollout(model, Q, QD, jnp.zeros((ROLLOUT_STEPS, 4)))
         e = energy(model, trajectory.q[: steps + 1], trajectory.qd[: steps + 1])
         errors[dt] = float(jnp.max(jnp.abs(e - e[0])))
@@ -77,7 +77,7 @@ def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollo
 
 def test_ground_reaction_of_a_robot_at_rest_is_its_weight(biped12):
     q = jnp.array([0.0, 0.3, -0.3, 0.2, 0.4])
-    force = jax.jit(hs.ground_reaction)(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
+    force = jax.jit(hybrid_step.ground_reaction)(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
     weight = float(jnp.sum(biped12.pinned.body_mass)) * 9.81
     np.testing.assert_allclose(force, [0.0, weight], atol=EXACT * weight)
 
@@ -124,8 +124,8 @@ def single_support(biped12):
 
     @jax.jit
     def at(q, qd, u):
-        qdd = hs.stance_acceleration(pinned, q, qd, u)
-        force = hs.ground_reaction(pinned, q, qd, qdd)
+        qdd = hybrid_step.stance_acceleration(pinned, q, qd, u)
+        force = hybrid_step.ground_reaction(pinned, q, qd, qdd)
         return {"qdd": qdd, "force": force, "newton": newton(q, qd, qdd),
                 "floating": floating_accelerations(q, qd, u, qdd, force)}
     return at
@@ -183,7 +183,7 @@ def landing(biped12):
 @pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landing):
     floating = biped12.floating
-    foot2 = hs.site_position(floating, landing.floating_q, "foot2")
+    foot2 = hybrid_step.site_position(floating, landing.floating_q, "foot2")
     before = angular_momentum_about(floating, landing.floating_q, landing.floating_qd_before, foot2)
     after = angular_momentum_about(floating, landing.floating_q, landing.floating_qd_after, foot2)
     assert abs(float(before)) > 0.1  # a real test: there is momentum to conserve
@@ -204,8 +204,8 @@ def test_impact_momentum_balance(biped12, landing):
 
     @jax.jit  # one program: op by op, MJX compiles each operation alone (twice the time)
     def jumps(qf, before, after):
-        com_velocity = lambda qd: jax.jvp(functools.partial(hs.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
-        return (hs.mass_matrix(floating, qf) @ (after - before), impact.foot_jacobian(floating, qf, "foot2"),
+        com_velocity = lambda qd: jax.jvp(functools.partial(hybrid_step.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
+        return (hybrid_step.mass_matrix(floating, qf) @ (after - before), impact.foot_jacobian(floating, qf, "foot2"),
                 jnp.sum(floating.body_mass) * (com_velocity(after) - com_velocity(before)))
     jump, jac, momentum_jump = jumps(landing.floating_q, landing.floating_qd_before, landing.floating_qd_after)
     np.testing.assert_allclose(jump, jac.T @ landing.impulse, atol=EXACT)
@@ -221,7 +221,7 @@ def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
     jac1 = impact.foot_jacobian(biped12.floating, landing.floating_q, "foot1")
     np.testing.assert_allclose(landing.old_stance_foot_velocity, jac1 @ qf_after, atol=EXACT)
     # the new stance foot sits at the origin of the next step's pinned chain
-    _, swing_velocity = hs.swing_foot(biped12.pinned, landing.q, landing.qd)
+    _, swing_velocity = hybrid_step.swing_foot(biped12.pinned, landing.q, landing.qd)
     np.testing.assert_allclose(swing_velocity, landing.old_stance_foot_velocity, atol=1e-9)
 
 
@@ -237,7 +237,7 @@ def test_pinned_and_floating_variants_agree(biped12):
     to_floating = jax.jit(impact.pinned_to_floating)
     qf = to_floating(pinned, Q, np.zeros(5))[0]
     g = jnp.stack([to_floating(pinned, Q, e)[1] for e in np.eye(5)], axis=1)
-    mass_matrix, gravity = jax.jit(hs.mass_matrix), jax.jit(hs.generalized_gravity)
+    mass_matrix, gravity = jax.jit(hybrid_step.mass_matrix), jax.jit(hybrid_step.generalized_gravity)
     np.testing.assert_allclose(g.T @ mass_matrix(floating, qf) @ g, mass_matrix(pinned, Q), atol=EXACT)
     np.testing.assert_allclose(g.T @ gravity(floating, qf), gravity(pinned, Q), atol=1e-9)
 
@@ -341,8 +341,8 @@ def test_touchdown_gradient_matches_finite_differences(biped12):
 
 def test_wrong_shapes_are_named(biped12):
     with pytest.raises(ValueError, match=r"controls must have shape \(T, 4\), got \(10, 3\)"):
-        hs.stance_rollout(biped12.pinned, Q, QD, jnp.zeros((10, 3)))
+        hybrid_step.stance_rollout(biped12.pinned, Q, QD, jnp.zeros((10, 3)))
     with pytest.raises(ValueError, match=r"q0 must have shape \(5,\), got \(7,\)"):
-        hs.stance_rollout(biped12.pinned, jnp.zeros(7), QD, jnp.zeros((10, 4)))
+        hybrid_step.stance_rollout(biped12.pinned, jnp.zeros(7), QD, jnp.zeros((10, 4)))
     with pytest.raises(ValueError, match="mass class '15kg'"):
-        hs.load_planar_biped("15kg")
+        hybrid_step.load_planar_biped("15kg")

@@ -258,7 +258,7 @@ def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_g
     of the limit problem: stationarity with the solver's multipliers, z >= 0, complementarity; the limit
     is the gait's own peak power on the solve grid (tight), far below the model's own."""
     import dataclasses
-    from biped_jax.gait import problem as gait
+    from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import stack_tree
     from biped_jax.studies import paper as study
     solver, models, solutions = interior_gaits
@@ -277,7 +277,8 @@ def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_g
         assert peak == pytest.approx(t * own_limit, rel=1e-6)  # the limit is tight
         assert peak < 0.5 * float(np.max(np.abs(own.trajectory.joint_power)))
         point = np.concatenate([minimum.x, [t]])
-        f, h, g, grad, jac_h, jac_g = central_differences(evaluate, point, gait.LimitParams(model, np.asarray(0.0)))
+        f, h, g, grad, jac_h, jac_g = central_differences(evaluate, point, gait_problem.LimitParams(model,
+                                                                                                    np.asarray(0.0)))
         lam_eq, lam_in = minimum.multipliers_eq, minimum.multipliers_in
         assert f == pytest.approx(t) and np.max(np.abs(h)) < 1e-6 and np.max(g) < 1e-6
         assert np.all(lam_in >= 0)

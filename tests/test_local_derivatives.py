@@ -7,19 +7,19 @@ import jax
 import numpy as np
 import pytest
 
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import segmented
 from biped_jax.optim import local_derivatives as ld
 
 #: Multiply shot in 4 segments of one knot span.
-SPACES = {"4 segments": gait.GaitSettings(spans=4, segments=4, substeps=2)}
+SPACES = {"4 segments": gait_problem.GaitSettings(spans=4, segments=4, substeps=2)}
 
 
 def _space(settings):
     jax.config.update("jax_enable_x64", True)
     from biped_jax.gait.solver import GaitSolver
     solver = GaitSolver(settings, check_refinement=False)
-    model = gait.gait_model("18kg", 0.6, 15.0)
+    model = gait_problem.gait_model("18kg", 0.6, 15.0)
     x = np.asarray(solver._initial_guess(jax.tree.map(lambda a: a[None], model))[0])
     return solver, model, x + 0.02 * np.random.default_rng(4).normal(size=x.shape)  # off the start's symmetry
 

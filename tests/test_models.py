@@ -31,14 +31,14 @@ def test_a_model_and_its_variants_are_one_program(biped12):
     wherever an uncommitted leaf or state met it (``with_timestep``, a rollout's end state): the loaded
     models are uncommitted, and the rollout of the model, of its ``with_timestep`` and ``with_design``
     variants lowers to one program (traced, not compiled), which a committed copy does not."""
-    from biped_jax.dynamics import hybrid_step as hs
+    from biped_jax.dynamics import hybrid_step
     for model in (biped12.pinned, biped12.floating, robots.load_mjx_model("donald")):
         assert not [x for x in jax.tree.leaves(model) if isinstance(x, jax.Array) and x.committed]
     state, controls = np.zeros(5), np.zeros((3, 4))
-    lowered = lambda model: jax.jit(hs.stance_rollout).lower(model, state, state, controls).as_text()  # noqa: E731
+    lowered = lambda model: jax.jit(hybrid_step.stance_rollout).lower(model, state, state, controls).as_text()  # noqa: E731
     program = lowered(biped12.pinned)
-    assert lowered(hs.with_timestep(biped12.pinned, 1e-3)) == program
-    assert lowered(hs.with_design(biped12, hs.planar_design("18kg")).pinned) == program
+    assert lowered(hybrid_step.with_timestep(biped12.pinned, 1e-3)) == program
+    assert lowered(hybrid_step.with_design(biped12, hybrid_step.planar_design("18kg")).pinned) == program
     committed = jax.tree.map(lambda x: jax.device_put(x, jax.devices()[0]) if isinstance(x, jax.Array) else x,
                              biped12.pinned)
     assert lowered(committed) != program

@@ -12,26 +12,26 @@ import pytest
 from conftest import GRADIENT_DT, GRADIENT_START, GRADIENT_STEPS, rollout_cost
 
 from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step
 from biped_jax.dynamics import planar_chain, stance
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.robots import planar_biped
 
 #: xdist groups: see tests/test_hybrid_step.py.
 
-mjx = hs.mjx
+mjx = hybrid_step.mjx
 
 
 @pytest.fixture(scope="module")
 def designed_biped(biped12):
     """The 12 kg biped with a design unlike the file's: other masses, drive masses at the joints,
     armature and damping, so every parameter path is exercised."""
-    design = hs.planar_design("12kg")
+    design = hybrid_step.planar_design("12kg")
     design = dataclasses.replace(design, link_mass=design.link_mass * jnp.array([0.8, 1.1, 1.3, 0.9, 1.2]),
                                  joint_armature=jnp.array([0.01, 0.02, 0.015, 0.03]),
                                  joint_damping=jnp.array([0.1, 0.2, 0.3, 0.4]),
                                  drive_mass=jnp.array([0.3, 0.2, 0.3, 0.2]))
-    return hs.with_design(biped12, design)
+    return hybrid_step.with_design(biped12, design)
 
 
 @pytest.fixture(scope="module")
@@ -70,8 +70,8 @@ def test_every_quantity_equals_mjx(designed_biped, seed):
     np.testing.assert_allclose(force, reference_force, atol=1e-9)
     np.testing.assert_allclose(sites, reference_sites, atol=1e-14)
     np.testing.assert_allclose(planar_chain.mechanical_energy(chain_dynamics.chain, designed, state, qd),
-                               hs.mechanical_energy(designed, q, qd), rtol=1e-12)
-    foot1 = mjx.name2id(designed, hs.robots.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
+                               hybrid_step.mechanical_energy(designed, q, qd), rtol=1e-12)
+    foot1 = mjx.name2id(designed, hybrid_step.robots.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
     np.testing.assert_allclose(planar_chain.site_positions(chain_dynamics.chain, designed, state, ("foot1",))[0],
                                data.site_xpos[foot1][jnp.array([0, 2])], atol=1e-14)
 
@@ -86,7 +86,7 @@ def landings(designed_biped):
     def closed_form(pinned, q, qd):
         return (impact.chain_touchdown(chain, pinned, q, qd),
                 planar_chain.site_motion(chain, pinned, q, qd, "foot2"))
-    return closed_form, jax.jit(impact.touchdown), jax.jit(hs.swing_foot)
+    return closed_form, jax.jit(impact.touchdown), jax.jit(hybrid_step.swing_foot)
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -117,7 +117,7 @@ def test_rollout_and_its_gradient_equal_mjx(biped12, mjx_rollout_gradient):
     respect to the start state and the torques (MJX's program is the one
     test_hybrid_step checks against finite differences)."""
     chain = planar_chain.PlanarChain.from_model(biped12.pinned)
-    pinned = hs.with_timestep(biped12.pinned, GRADIENT_DT)
+    pinned = hybrid_step.with_timestep(biped12.pinned, GRADIENT_DT)
     params = (*map(jnp.asarray, GRADIENT_START), jnp.asarray(np.random.default_rng(3).normal(size=(GRADIENT_STEPS, 4))))
 
     def chain_cost(params):
@@ -139,25 +139,26 @@ def test_the_gait_rollout_traces_alike_with_either_dynamics(biped12):
     """The optimiser's rollout reads only the strategies' methods, checked equal above and, for the
     touchdown and the swing foot, in test_touchdown_and_swing_foot_equal_mjx; here MJX's is traced through
     the whole rollout (not compiled: that takes a minute) and gives the chain's shapes and dtypes."""
-    model = gait.gait_model("12kg", 0.555, 20.0)
+    model = gait_problem.gait_model("12kg", 0.555, 20.0)
     shapes = {}
-    for dynamics in gait.DYNAMICS:
-        settings = gait.GaitSettings(spans=4, substeps=2, dynamics=dynamics)
-        x = gait.initial_guess(model, settings)
-        shapes[dynamics] = jax.eval_shape(functools.partial(gait.simulate, biped=biped12, settings=settings), x, model)
+    for dynamics in gait_problem.DYNAMICS:
+        settings = gait_problem.GaitSettings(spans=4, substeps=2, dynamics=dynamics)
+        x = gait_problem.initial_guess(model, settings)
+        shapes[dynamics] = jax.eval_shape(functools.partial(gait_problem.simulate, biped=biped12, settings=settings),
+                                          x, model)
     assert jax.tree.structure(shapes["chain"]) == jax.tree.structure(shapes["mjx"])
     assert jax.tree.leaves(shapes["chain"]) == jax.tree.leaves(shapes["mjx"])
 
 
 def test_unknown_dynamics_is_rejected():
     from biped_jax import cli
-    assert cli.DYNAMICS == gait.DYNAMICS  # the command line's choices
+    assert cli.DYNAMICS == gait_problem.DYNAMICS  # the command line's choices
     with pytest.raises(ValueError, match="dynamics must be one of .* got 'rk4'"):
-        gait.GaitSettings(dynamics="rk4")
+        gait_problem.GaitSettings(dynamics="rk4")
     with pytest.raises(SystemExit):
         cli.main(["codesign", "--dynamics", "rk4"])
     from biped_jax.dynamics import stance
-    assert tuple(stance.DYNAMICS) == gait.DYNAMICS  # one strategy per name the settings accept
+    assert tuple(stance.DYNAMICS) == gait_problem.DYNAMICS  # one strategy per name the settings accept
     with pytest.raises(ValueError, match="dynamics must be one of .* got 'rk4'"):
         stance.stance_dynamics(None, "rk4")
 

@@ -1,6 +1,6 @@
 """The co-design's hardware as arrays: a :class:`DriveDesign` (traced, batchable with ``vmap``) holds per
 actuated joint (H1, K1, H2, K2) a gear of ratio N and a motor winding, and the structural mass of each
-link. It maps to the gait problem (:func:`gait_model`) as
+link. It maps to the gait problem (:func:`design_gait_model`) as
 
 - reflected inertia N^2 (J_rotor + J_gear) as the joint's armature in the MJX model;
 - motor and gear mass as a point mass at the joint on the link carrying the drive (both hip drives in
@@ -26,8 +26,8 @@ import numpy as np
 
 from biped_jax import checks
 from biped_jax.drives import model as drive_model
-from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.dynamics import hybrid_step
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import stack_tree
 from biped_jax.robots.design import Design, check_design
 from biped_jax.robots.planar_biped import PLANAR_DRIVE_MOUNTS, PLANAR_LINKS
@@ -81,7 +81,7 @@ def robot_design(design: DriveDesign) -> Design:
                     joint_damping=jnp.zeros_like(design.ratio),
                     drive_mass=design.motor_mass + design.gear_mass)
     if checks.concrete(design):
-        check_design(result, hs.planar_layouts()[0])
+        check_design(result, hybrid_step.planar_layouts()[0])
     return result
 
 
@@ -95,13 +95,13 @@ def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
                                    reflected_inertia=reflected_inertia(design))
 
 
-def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait.GaitModel:
+def design_gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait_problem.GaitModel:
     """The gait problem of a design (traceable: ``speed`` etc. may be arrays). The geometry is that of
     the paper's biped (docs/gait-problem.md); masses and drives come from ``design``. Concrete values are
     checked (:func:`biped_jax.gait.problem.check_problem`)."""
     if checks.concrete(speed, power_limit, step_length):
-        gait.check_problem(speed, power_limit, step_length)
-    return gait.GaitModel(design=robot_design(design), speed=jnp.asarray(speed, float),
+        gait_problem.check_problem(speed, power_limit, step_length)
+    return gait_problem.GaitModel(design=robot_design(design), speed=jnp.asarray(speed, float),
                           step_length=jnp.asarray(step_length, float),
                           power_limit=jnp.asarray(power_limit, float), drives=joint_drives(design))
 
@@ -109,7 +109,7 @@ def gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait
 def _structure_of(mass_class: str, drive_mass: float) -> np.ndarray:
     """The mass class's link masses with four drives of ``drive_mass`` taken out of the links that
     carry them, kg, (5,): the robot weighs its nominal mass with those drives fitted."""
-    structure = np.asarray(hs.planar_design(mass_class).link_mass, dtype=float).copy()
+    structure = np.asarray(hybrid_step.planar_design(mass_class).link_mass, dtype=float).copy()
     for mount in PLANAR_DRIVE_MOUNTS:
         structure[PLANAR_LINKS.index(mount)] -= drive_mass
     if np.any(structure <= 0):

@@ -2,7 +2,7 @@
 
 The hardware is a :class:`~biped_jax.codesign.drive_design.DriveDesign` (arrays, batchable; its names are
 re-exported here, so ``from biped_jax.codesign import problem as codesign`` is the whole co-design), mapped
-to the gait problem by :func:`~biped_jax.codesign.drive_design.gait_model`. So one compiled gait program
+to the gait problem by :func:`~biped_jax.codesign.drive_design.design_gait_model`. So one compiled gait program
 (``GaitSolver``) solves any batch of designs (:func:`solve_designs`), and the paper's problem is the
 special case of ideal drives. Gradients of the optimal Joule energy with respect to the design come
 from the envelope theorem (:func:`biped_jax.optim.nlp.optimal_value_gradient`): at a
@@ -30,7 +30,7 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
     REFERENCE_GEARHEAD,
     REFERENCE_MOTOR,
     catalogue_design,
-    gait_model,
+    design_gait_model,
     joint_drives,
     nearest_gearhead,
     reflected_inertia,
@@ -40,7 +40,7 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
     with_ratio,
 )
 from biped_jax.drives import model as drive_model
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
 
@@ -53,7 +53,7 @@ __all__ = [
     "catalogue_design",
     "co_optimise",
     "design_record",
-    "gait_model",
+    "design_gait_model",
     "joint_drives",
     "nearest_gearhead",
     "ratio_gradient",
@@ -99,10 +99,10 @@ def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_l
     size = len(designs)
     speeds, limits, lengths = (per_design(label, value, size) for label, value in
                                (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)))
-    gait.check_problem(speeds, limits, lengths)
+    gait_problem.check_problem(speeds, limits, lengths)
     if names is not None:
         checks.same_length(designs=designs, names=checks.sequence("names", names, str, "label (str)"))
-    models = [gait_model(d, v, p, length) for d, v, p, length in zip(designs, speeds, limits, lengths)]
+    models = [design_gait_model(d, v, p, length) for d, v, p, length in zip(designs, speeds, limits, lengths)]
     names = names or [f"design {b}" for b in range(size)]
     solutions = solver.solve(names, models, x0=x0, progress=progress)
     if summary:
@@ -139,7 +139,7 @@ def design_record(design: DriveDesign, solution) -> dict:
         "joule_energy_J": solution.cost,
         "joule_energy_exact_switch_J": exact_joule,
         "joule_energy_per_metre_J_per_m": solution.cost / solution.step_length_m,
-        "int_u2_N2m2s": float(gait.cost(trajectory)),
+        "int_u2_N2m2s": float(gait_problem.cost(trajectory)),
         "peak_joint_power_W": float(np.max(np.abs(np.asarray(trajectory.joint_power)))),
         "max_voltage_needed_V": float(np.max(needed)),
     }
@@ -157,7 +157,7 @@ def ratio_gradient(solver) -> Callable:
 
     def parameters_to_model(theta):
         design, log_ratio, speed, power_limit, step_length = theta
-        return gait_model(with_ratio(design, log_ratio, catalogue), speed, power_limit, step_length)
+        return design_gait_model(with_ratio(design, log_ratio, catalogue), speed, power_limit, step_length)
 
     envelope = nlp.optimal_value_gradient(solver.problem, parameters_to_model)
 
@@ -206,7 +206,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     checks.number_in("min_step", min_step, 0.0, 10.0, "(log N)")
     if not (len(ratio_bounds) == 2 and 0 < ratio_bounds[0] < ratio_bounds[1]):
         raise ValueError(f"ratio_bounds must be (low, high) with 0 < low < high, got {ratio_bounds!r}")
-    gait.check_problem(*(per_design(label, value, len(designs)) for label, value in
+    gait_problem.check_problem(*(per_design(label, value, len(designs)) for label, value in
                          (("speed", speed), ("power_limit", power_limit), ("step_length", step_length))))
     say = progress or (lambda message: None)
     gradient = ratio_gradient(solver)

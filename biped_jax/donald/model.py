@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.robots import registry as robots
 from biped_jax.robots.mjcf import DONALD_ACTUATED_JOINTS
 from biped_jax.robots.specs import DonaldSpec
@@ -43,10 +43,10 @@ DONALD_GEAR = "GP32A-245.96"
 
 
 def donald_drive(motor: str = DONALD_MOTOR, gear: str = DONALD_GEAR,
-                 supply_voltage: float = DONALD_SUPPLY_VOLTAGE) -> drives.JointDrives:
+                 supply_voltage: float = DONALD_SUPPLY_VOLTAGE) -> drive_model.JointDrives:
     """The drive of every DONALD joint from the catalogue (fields of shape ()); raises ValueError
     naming an unknown part."""
-    return drives.catalogue_drives(motor, gear, supply_voltage)
+    return drive_model.catalogue_drives(motor, gear, supply_voltage)
 
 
 @jax.tree_util.register_dataclass
@@ -62,11 +62,12 @@ DEFAULT_GAINS = Gains(stiffness=jnp.array([60.0, 40.0, 40.0, 60.0, 20.0]),
                       damping=jnp.array([3.0, 2.0, 2.0, 3.0, 1.0]))
 
 
-def pd_torque(gains: Gains, drive: drives.JointDrives, q, qd, q_ref, qd_ref) -> tuple[jax.Array, jax.Array, jax.Array]:
+def pd_torque(gains: Gains, drive: drive_model.JointDrives, q, qd, q_ref, qd_ref) -> tuple[jax.Array, jax.Array,
+                                                                                           jax.Array]:
     """(applied torque, commanded torque, (low, high) drive limits), shapes (5,), (5,), (2, 5): the PD
     command clipped to what the drive gives at the joint speed ``qd``."""
     command = gains.stiffness * (q_ref - q) + gains.damping * (qd_ref - qd)
-    low, high = drives.torque_limits(drive, qd)
+    low, high = drive_model.torque_limits(drive, qd)
     return jnp.clip(command, low, high), command, jnp.stack([low, high])
 
 
@@ -150,7 +151,7 @@ def reference(poses: jax.Array, times: jax.Array, t: jax.Array) -> tuple[jax.Arr
 
 # ----------------------------------------------------------------------------- simulation
 
-def load_donald(drive: drives.JointDrives | None = None, spec: DonaldSpec | None = None):
+def load_donald(drive: drive_model.JointDrives | None = None, spec: DonaldSpec | None = None):
     """(MuJoCo model, MJX model) of DONALD with the drive's reflected inertia as joint armature."""
     mj_model = robots.load_mj_model("donald") if spec is None else mujoco.MjModel.from_xml_string(
         __import__("biped_jax.robots.mjcf", fromlist=["donald_xml"]).donald_xml(spec))
@@ -204,7 +205,7 @@ def walker(mj_model: mujoco.MjModel, steps: int, duration: float, record_every: 
     joint_v = np.array([mj_model.joint(j).dofadr[0] for j in DONALD_ACTUATED_JOINTS])
 
     @jax.jit
-    def walk(model, gait: DonaldGait, gains: Gains, drive: drives.JointDrives) -> DonaldRun:
+    def walk(model, gait: DonaldGait, gains: Gains, drive: drive_model.JointDrives) -> DonaldRun:
         poses, times = keyframes(gait, steps)
 
         def physics_step(data, _):
@@ -276,7 +277,7 @@ def support_phases(run: DonaldRun, spec: DonaldSpec = DonaldSpec()) -> tuple[np.
     return touching, margin
 
 
-def walk_report(run: DonaldRun, drive: drives.JointDrives, gains: Gains, spec: DonaldSpec = DonaldSpec()) -> dict:
+def walk_report(run: DonaldRun, drive: drive_model.JointDrives, gains: Gains, spec: DonaldSpec = DonaldSpec()) -> dict:
     """Steps, distance, falls, static-stability margin and the joints against the drive's limits."""
     touching, margin = support_phases(run, spec)
     single = ~np.isnan(margin)

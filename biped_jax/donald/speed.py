@@ -44,7 +44,7 @@ import numpy as np
 import optax
 
 from biped_jax.donald import model as donald
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.optim import nlp
 
 STEPS = 3
@@ -63,7 +63,7 @@ DURATION = donald.SETTLE_TIME + STEPS * 1.1 * float(donald.DEFAULT_GAIT.step_tim
 DIFFERENCE_STEP = 0.03
 
 
-def differentiable_donald(drive: drives.JointDrives):
+def differentiable_donald(drive: drive_model.JointDrives):
     """DONALD with one constraint-solver iteration per step: MJX's solver loop is a while_loop, which
     reverse mode cannot differentiate; a single Newton iteration (warm-started) is a scan
     (docs/dynamics.md, "Through contact"). The walk is re-checked with the full solver after optimising."""
@@ -83,7 +83,7 @@ def _value_at(t: jax.Array, samples_t: jax.Array, values: jax.Array) -> jax.Arra
     return jnp.interp(t, samples_t, values)
 
 
-def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive: drives.JointDrives,
+def speed_and_constraints(z: jax.Array, walk, model, gains: donald.Gains, drive: drive_model.JointDrives,
                           spec: donald.DonaldSpec = donald.DonaldSpec()):
     """(minus the speed in units of 0.01 m/s, no equalities, inequalities <= 0), each inequality group
     divided by its scale (margin 10 mm, contact height 2 mm, clearance 3 mm, pelvis 10 mm; bounds as

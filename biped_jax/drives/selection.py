@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from biped_jax import checks
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.drives.model import MNM, RPM
 from biped_jax.report import outputs
 
@@ -79,15 +79,15 @@ def requirements(workspace: JointWorkspace, window: float = IMPACT_WINDOW) -> di
 
 
 def _check_parts(workspace, motor, gear, supply_voltage, window) -> None:
-    for name, value, kind in (("workspace", workspace, JointWorkspace), ("motor", motor, drives.Motor),
-                              ("gear", gear, drives.Gearhead)):
+    for name, value, kind in (("workspace", workspace, JointWorkspace), ("motor", motor, drive_model.Motor),
+                              ("gear", gear, drive_model.Gearhead)):
         if not isinstance(value, kind):
             raise TypeError(f"{name} must be a {kind.__name__}, got {type(value).__name__}")
     checks.number_in("supply_voltage", supply_voltage, 0.0, math.inf, "V")
     checks.number_in("window", window, -1e-12, 0.5, "(fraction of the step)")
 
 
-def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gearhead,
+def check_drive(workspace: JointWorkspace, motor: drive_model.Motor, gear: drive_model.Gearhead,
                 supply_voltage: float, window: float = IMPACT_WINDOW) -> dict:
     """Checks one motor and gearhead on every joint's samples outside the impact window.
 
@@ -95,18 +95,18 @@ def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gea
     "rms_motor_torque_mNm", "max_motor_rpm", ...}; reason names the first failed check with numbers.
     """
     _check_parts(workspace, motor, gear, supply_voltage, window)
-    drives.check_ratio(gear.ratio)
+    drive_model.check_ratio(gear.ratio)
     inside = workspace.outside_impacts(window)
     speed, torque = workspace.speed[inside], workspace.torque[inside]
-    motor_torque = np.asarray(drives.motor_torque(torque, speed, gear.ratio, gear.efficiency))
-    motor_speed = np.asarray(drives.motor_speed(speed, gear.ratio))
-    margin = np.asarray(drives.voltage_margin(motor_torque, motor_speed, motor, supply_voltage))
+    motor_torque = np.asarray(drive_model.motor_torque(torque, speed, gear.ratio, gear.efficiency))
+    motor_speed = np.asarray(drive_model.motor_speed(speed, gear.ratio))
+    margin = np.asarray(drive_model.voltage_margin(motor_torque, motor_speed, motor, supply_voltage))
     # the samples may be unevenly spaced (the gait's grid): time averages by the trapezoidal rule
     weights = trapezoid_weights(workspace.t)[:, None]
-    all_torque = np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio, gear.efficiency))
+    all_torque = np.asarray(drive_model.motor_torque(workspace.torque, workspace.speed, gear.ratio, gear.efficiency))
     rms_motor = np.sqrt(np.sum(weights * all_torque**2, axis=0) / weights.sum())
     rms_output = np.sqrt(np.sum(weights * workspace.torque**2, axis=0) / weights.sum())
-    joule = float(np.sum(weights * np.asarray(drives.joule_loss(all_torque, motor))))
+    joule = float(np.sum(weights * np.asarray(drive_model.joule_loss(all_torque, motor))))
     checks = [
         (margin.min() >= 0, f"voltage: needs {supply_voltage - margin.min():.1f} V > {supply_voltage:g} V supply "
                             f"(operating point above the speed-torque line)"),
@@ -131,13 +131,13 @@ def check_drive(workspace: JointWorkspace, motor: drives.Motor, gear: drives.Gea
             "max_motor_rpm": float(np.abs(motor_speed).max() / RPM)}
 
 
-def select_drive(workspaces: list[JointWorkspace], catalogue: drives.Catalogue,
+def select_drive(workspaces: list[JointWorkspace], catalogue: drive_model.Catalogue,
                  window: float = IMPACT_WINDOW) -> tuple[dict | None, list[dict]]:
     """Every winding x ratio checked on all given gaits (all must pass); feasible ones ranked by Joule
     energy per step summed over the gaits, then mass. Returns (best or None, all candidates)."""
     workspaces = checks.sequence("workspaces", workspaces, JointWorkspace, "JointWorkspace")
-    if not isinstance(catalogue, drives.Catalogue):
-        raise TypeError("catalogue must be a Catalogue (drives.model.load_catalogue()), got "
+    if not isinstance(catalogue, drive_model.Catalogue):
+        raise TypeError("catalogue must be a Catalogue (biped_jax.drives.model.load_catalogue()), got "
                         f"{type(catalogue).__name__}")
     candidates = []
     for motor in catalogue.motors.values():
@@ -162,7 +162,7 @@ def best_without_thermal(candidates: list[dict]) -> dict | None:
     return ok[0] if ok else None
 
 
-def plot_motor_workspace(workspace: JointWorkspace, catalogue: drives.Catalogue, ratios, title: str, path,
+def plot_motor_workspace(workspace: JointWorkspace, catalogue: drive_model.Catalogue, ratios, title: str, path,
                          windings=("RE25-30V", "RE25-42V", "RE25-48V"), window: float = IMPACT_WINDOW) -> None:
     """Required motor torque against rpm (all joints, outside the impact window) with the speed-torque
     lines of the given windings at the supply voltage, one panel per gear ratio (paper Figs. 4-5)."""
@@ -174,14 +174,14 @@ def plot_motor_workspace(workspace: JointWorkspace, catalogue: drives.Catalogue,
     figure, axes = plt.subplots(1, len(ratios), figsize=(5 * len(ratios), 4.2), constrained_layout=True)
     for axis, ratio in zip(np.atleast_1d(axes), ratios):
         gear = catalogue.gearhead(f"GP32A-{ratio:g}")
-        torque = np.abs(np.asarray(drives.motor_torque(workspace.torque, workspace.speed, gear.ratio,
+        torque = np.abs(np.asarray(drive_model.motor_torque(workspace.torque, workspace.speed, gear.ratio,
                                                        gear.efficiency)))[inside]
         speed = np.abs(workspace.speed[inside]) * gear.ratio / RPM
         axis.scatter(torque.ravel() / MNM, speed.ravel(), s=6, alpha=0.6, label="required (all joints)")
         line_torque = np.linspace(0, max(torque.max() / MNM * 1.2, 50), 50)
         for part in windings:
             motor = catalogue.motor(part)
-            line = np.asarray(drives.max_speed_at_torque(line_torque * MNM, motor, catalogue.supply_voltage)) / RPM
+            line = np.asarray(drive_model.max_speed_at_torque(line_torque * MNM, motor, catalogue.supply_voltage)) / RPM
             axis.plot(line_torque, line, label=f"{part} at {catalogue.supply_voltage:g} V")
         axis.set_title(f"{title}, gear {gear.ratio:g}:1")
         axis.set_xlabel("motor torque [mNm]")
@@ -193,11 +193,6 @@ def plot_motor_workspace(workspace: JointWorkspace, catalogue: drives.Catalogue,
     plt.close(figure)
 
 
-# ----------------------------------------------------------------------------- the study's drive part
-
-#: Which gaits each mass class's drive must serve (paper Table 3).
-MASS_CLASS_GAITS = {"12kg": ("M1", "M2"), "18kg": ("M3", "M4")}
-PAPER_CHOICE = ("RE25-42V", "GP32A-66.22")
 
 
 def save_workspaces(path, solutions) -> None:
@@ -249,66 +244,3 @@ def load_workspaces(path) -> dict[str, tuple[JointWorkspace, dict]]:
         out[name] = (JointWorkspace(t=t, speed=speed, torque=torque, step_time=float(step_time)),
                      {"mass_kg": float(mass), "speed_mps": float(speed_mps), "converged": bool(converged)})
     return out
-
-
-def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
-    """Table 6, the selection per mass class, the paper's choice checked, Figs. 4-5; writes
-    drives.json, drives.md, fig4_motor_M2.png and fig5_motor_M4.png into ``out``."""
-    from pathlib import Path
-    out = Path(out)
-    catalogue = drives.load_catalogue()
-    report = []
-    lines = ["# Drive train (Table 6 and the motor selection)", "",
-             f"Supply {catalogue.supply_voltage:g} V; samples within {IMPACT_WINDOW:.0%} of t_f of either "
-             "end of the step are left out (the paper's neglected spikes), their maxima shown in brackets.", ""]
-    for mass_class, names in MASS_CLASS_GAITS.items():
-        available = [n for n in names if n in gaits and gaits[n][1]["converged"]]
-        if not available:
-            report.append({"mass_class": mass_class, "error": "no converged gait"})
-            continue
-        workspaces = [gaits[n][0] for n in available]
-        merged = JointWorkspace(t=np.concatenate([w.t / w.step_time for w in workspaces]),
-                                speed=np.concatenate([w.speed for w in workspaces]),
-                                torque=np.concatenate([w.torque for w in workspaces]), step_time=1.0)
-        table6 = requirements(merged)
-        best, candidates = select_drive(workspaces, catalogue)
-        paper = next(c for c in candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
-        loose = best_without_thermal(candidates)
-        slow_best, slow_candidates = select_drive(workspaces[:1], catalogue)
-        slow_paper = next(c for c in slow_candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
-        entry = {"mass_class": mass_class, "mass_kg": gaits[available[0]][1]["mass_kg"], "gaits": available,
-                 "requirements": table6,
-                 "recommended": None if best is None else {k: best[k] for k in (
-                     "part", "motor", "gearhead", "nominal_voltage_V", "ratio", "joule_energy_J", "mass_kg")},
-                 "paper_choice": {k: paper[k] for k in ("part", "feasible", "feasible_without_thermal", "reason",
-                                                        "joule_energy_J")},
-                 "recommended_without_thermal_check": None if loose is None else loose["part"],
-                 f"recommended_for_{available[0]}_only": None if slow_best is None else slow_best["part"],
-                 f"paper_choice_for_{available[0]}_only": {k: slow_paper[k] for k in ("feasible", "reason")},
-                 "candidates": [{k: c[k] for k in ("part", "ratio", "nominal_voltage_V", "feasible",
-                                                   "feasible_without_thermal", "reason", "joule_energy_J", "mass_kg")}
-                                for c in candidates]}
-        report.append(entry)
-        r = table6
-        lines += [f"## {mass_class} ({', '.join(available)})", "",
-                  "| Table 6 | value |", "|---|---|",
-                  "| Operational torque | {:.2f}-{:.2f} N m |".format(*r["operational_torque_Nm"]),
-                  f"| Maximum torque | {r['max_torque_Nm']:.2f} N m ({r['max_torque_with_impacts_Nm']:.2f}) |",
-                  f"| Operational rpm | {r['operational_rpm'][0]:.0f}-{r['operational_rpm'][1]:.0f} rpm |",
-                  f"| Maximum rpm | {r['max_rpm']:.0f} rpm ({r['max_rpm_with_impacts']:.0f}) |",
-                  f"| Maximum power | {r['max_power_W']:.1f} W ({r['max_power_with_impacts_W']:.1f}) |", "",
-                  f"- Recommended (all checks): **{best['part'] if best else 'none feasible'}**"
-                  + (f", Joule energy {best['joule_energy_J']:.2f} J per step over the gaits" if best else ""),
-                  f"- Paper's criterion (speed-torque line and gear limits, no thermal check): "
-                  f"**{loose['part'] if loose else 'none feasible'}**",
-                  f"- The paper's 42 V + 66:1: {'feasible' if paper['feasible'] else 'fails: ' + paper['reason']}"
-                  f" (under the paper's criterion: {'passes' if paper['feasible_without_thermal'] else 'fails'})",
-                  f"- For {available[0]} alone: {slow_best['part'] if slow_best else 'none feasible'} "
-                  f"(the paper's choice: {'feasible' if slow_paper['feasible'] else slow_paper['reason']})", "",
-                  f"{sum(c['feasible'] for c in candidates)} of {len(candidates)} winding x ratio pairs pass.", ""]
-    outputs.write_json(out / "drives.json", report)
-    outputs.write_text(out / "drives.md", "\n".join(lines) + "\n")
-    for name, figure in (("M2", "fig4_motor_M2.png"), ("M4", "fig5_motor_M4.png")):
-        if name in gaits:
-            plot_motor_workspace(gaits[name][0], catalogue, (51, 66.22, 79), name, out / figure)
-    return {"drives": report}

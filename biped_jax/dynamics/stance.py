@@ -12,18 +12,18 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step
 from biped_jax.dynamics import planar_chain
 from biped_jax.robots.planar_biped import GAIT_SITES
 
-mjx = hs.mjx
+mjx = hybrid_step.mjx
 
 
 class ChainDynamics:
     """Mass matrix, bias force, stance force, site positions, the swing foot's motion and the
     touchdown from :mod:`biped_jax.dynamics.planar_chain` (closed forms, no MJX)."""
 
-    def __init__(self, biped: hs.PlanarBiped, chain: planar_chain.PlanarChain | None = None):
+    def __init__(self, biped: hybrid_step.PlanarBiped, chain: planar_chain.PlanarChain | None = None):
         """``chain``: the structure of ``biped.pinned`` when the model is traced (read from the model
         otherwise, which needs it concrete); every planar biped design has the same structure."""
         self.chain = planar_chain.PlanarChain.from_model(biped.pinned) if chain is None else chain
@@ -51,10 +51,10 @@ class ChainDynamics:
 class MjxDynamics:
     """The same quantities from MJX's forward pipeline."""
 
-    def __init__(self, biped: hs.PlanarBiped):
+    def __init__(self, biped: hybrid_step.PlanarBiped):
         self.biped, self.pinned = biped, biped.pinned
         self.template = mjx.make_data(biped.pinned)
-        self.sites = jnp.array([mjx.name2id(biped.pinned, hs.robots.mujoco.mjtObj.mjOBJ_SITE, name)
+        self.sites = jnp.array([mjx.name2id(biped.pinned, hybrid_step.robots.mujoco.mjtObj.mjOBJ_SITE, name)
                                 for name in GAIT_SITES])
 
     def terms(self, q, qd):
@@ -62,24 +62,24 @@ class MjxDynamics:
         return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
 
     def outputs(self, q, qd, qdd, data):
-        force = hs.stance_force(self.pinned, data.replace(qacc=qdd))
+        force = hybrid_step.stance_force(self.pinned, data.replace(qacc=qdd))
         return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
 
     def swing_foot(self, q, qd):
-        return hs.swing_foot(self.pinned, q, qd)
+        return hybrid_step.swing_foot(self.pinned, q, qd)
 
     def touchdown(self, q, qd):
         return impact.touchdown(self.biped, q, qd)
 
     def step(self, state, u):
-        return hs.stance_step(self.pinned, state, u)
+        return hybrid_step.stance_step(self.pinned, state, u)
 
 
 #: The dynamics by name (``GaitSettings.dynamics``, the command line's ``--dynamics``).
 DYNAMICS = {"chain": ChainDynamics, "mjx": MjxDynamics}
 
 
-def stance_dynamics(biped: hs.PlanarBiped, name: str = "chain") -> ChainDynamics | MjxDynamics:
+def stance_dynamics(biped: hybrid_step.PlanarBiped, name: str = "chain") -> ChainDynamics | MjxDynamics:
     """The single-support dynamics ``name`` (a key of :data:`DYNAMICS`) of ``biped``; ValueError naming
     another."""
     if name not in DYNAMICS:

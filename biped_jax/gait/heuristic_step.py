@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step
 from biped_jax.dynamics import planar_chain
 from biped_jax.dynamics import stance
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
@@ -86,7 +86,7 @@ def reference(gait: HeuristicGait, start, end, stance, stance_rate, stance_start
     return angle, rate
 
 
-def simulate_step(biped: hs.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
+def simulate_step(biped: hybrid_step.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
     """Runs the step; returns (trajectory, dt, touchdown index or -1, Touchdown at that index, swing
     foot positions and velocities).
 
@@ -97,7 +97,7 @@ def simulate_step(biped: hs.PlanarBiped, gait: HeuristicGait, chain: planar_chai
     """
     q0, qd0, end = start_state(gait)
     dt = 1.5 * gait.step_time / gait.steps
-    timed = dataclasses.replace(biped, pinned=hs.with_timestep(biped.pinned, dt))
+    timed = dataclasses.replace(biped, pinned=hybrid_step.with_timestep(biped.pinned, dt))
     dynamics = stance.MjxDynamics(timed) if chain is None else stance.ChainDynamics(timed, chain)
     actuated = jnp.asarray(ACTUATED_INDEX)  # (H1, K1, H2, K2) in pinned coordinates
     start = q0[actuated]
@@ -110,7 +110,7 @@ def simulate_step(biped: hs.PlanarBiped, gait: HeuristicGait, chain: planar_chai
         return state, (*state, qdd, u, force)
 
     _, (q, qd, qdd, u, force) = jax.lax.scan(step, (q0, qd0), None, length=gait.steps)
-    trajectory = hs.StanceTrajectory(q=jnp.concatenate([q0[None], q]),
+    trajectory = hybrid_step.StanceTrajectory(q=jnp.concatenate([q0[None], q]),
                                      qd=jnp.concatenate([qd0[None], qd]), qdd=qdd, u=u,
                                      ground_force=force)
     foot, foot_velocity = jax.vmap(dynamics.swing_foot)(trajectory.q, trajectory.qd)

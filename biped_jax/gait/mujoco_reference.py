@@ -16,7 +16,7 @@ import numpy as np
 
 from biped_jax.dynamics import impact
 from biped_jax.robots import planar_biped
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.robots import registry as robots
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
@@ -25,7 +25,7 @@ class CGaitRollout:
     """MuJoCo C models of one biped (``mass_class`` as in :func:`biped_jax.gait.problem.gait_model`, nominal
     design) and scratch buffers for :meth:`simulate`."""
 
-    def __init__(self, mass_class: str, settings: gait.GaitSettings):
+    def __init__(self, mass_class: str, settings: gait_problem.GaitSettings):
         self.settings = settings
         self.pinned = robots.load_mj_model(f"biped5_pinned_{mass_class}")
         self.floating = robots.load_mj_model(f"biped5_floating_{mass_class}")
@@ -48,7 +48,7 @@ class CGaitRollout:
     def _acceleration(self, theta: float, rate: float, ref) -> float:
         q, qd = self._assemble(theta, ref[0]), self._assemble(rate, ref[1])
         mass, bias = self._terms(q, qd)
-        return float(gait.stance_acceleration(mass, bias, ref[2]))
+        return float(gait_problem.stance_acceleration(mass, bias, ref[2]))
 
     @staticmethod
     def _assemble(theta, actuated) -> np.ndarray:
@@ -56,17 +56,17 @@ class CGaitRollout:
         full[0], full[planar_biped.ACTUATED_INDEX] = theta, actuated
         return full
 
-    def simulate(self, x: np.ndarray, speed: float, step_length: float) -> gait.GaitTrajectory:
+    def simulate(self, x: np.ndarray, speed: float, step_length: float) -> gait_problem.GaitTrajectory:
         """The step of decision vector ``x`` (shape (settings.size,)) at ``speed`` m/s over
         ``step_length`` m; arrays as in :class:`biped_jax.gait.problem.GaitTrajectory` (numpy)."""
         m, d, settings = self.pinned, self.pinned_data, self.settings
         x = np.asarray(x, dtype=float)
         step_time = step_length / speed
-        s = gait.grid(settings)
+        s = gait_problem.grid(settings)
         scale = np.array([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
-        at_grid = np.stack([np.asarray(r) for r in gait.reference(x, settings, s)]) * scale
-        at_mid = np.stack([np.asarray(r) for r in gait.reference(x, settings, 0.5 * (s[1:] + s[:-1]))]) * scale
-        nodes = np.asarray(gait.stance_nodes(x, settings))
+        at_grid = np.stack([np.asarray(r) for r in gait_problem.reference(x, settings, s)]) * scale
+        at_mid = np.stack([np.asarray(r) for r in gait_problem.reference(x, settings, 0.5 * (s[1:] + s[:-1]))]) * scale
+        nodes = np.asarray(gait_problem.stance_nodes(x, settings))
         per_segment = settings.steps // settings.segments
         theta, rate, defects, y = [], [], [], nodes[0]
         f = lambda y_, ref: np.array([y_[1], self._acceleration(y_[0], y_[1], ref)])  # noqa: E731
@@ -87,17 +87,18 @@ class CGaitRollout:
         for k in range(len(s)):
             q, qd = self._assemble(theta[k], at_grid[0, k]), self._assemble(rate[k], at_grid[1, k])
             mass, bias = self._terms(q, qd)
-            qdd = self._assemble(gait.stance_acceleration(mass, bias, at_grid[2, k]), at_grid[2, k])
+            qdd = self._assemble(gait_problem.stance_acceleration(mass, bias, at_grid[2, k]), at_grid[2, k])
             rows["sites"].append(d.site_xpos[self._sites].copy())
             d.qacc[:] = qdd  # no contacts or limits in the pinned chain
             mujoco.mj_rnePostConstraint(m, d)
             rows["force"].append(d.cfrc_int[planar_biped.STANCE_BODY, [3, 5]].copy())
-            for name, value in (("q", q), ("qd", qd), ("qdd", qdd), ("u", gait.actuated_torque(mass, bias, qdd))):
+            for name, value in (("q", q), ("qd", qd), ("qdd", qdd), ("u", gait_problem.actuated_torque(mass, bias,
+                                                                                                       qdd))):
                 rows[name].append(np.array(value))
         positions = np.stack(rows["sites"])
         foot_velocity = self._site_velocity(m, d, "foot2", qd)
-        return gait.GaitTrajectory(
-            t=s * step_time, weights=gait.simpson_weights(settings) * step_time, q=np.stack(rows["q"]),
+        return gait_problem.GaitTrajectory(
+            t=s * step_time, weights=gait_problem.simpson_weights(settings) * step_time, q=np.stack(rows["q"]),
             qd=np.stack(rows["qd"]), qdd=np.stack(rows["qdd"]), u=np.stack(rows["u"]),
             ground_force=np.stack(rows["force"]), swing_foot=positions[:, 0, [0, 2]], heights=positions[:, 1:, 2],
             touchdown=self._touchdown(q, qd, d), swing_foot_velocity=foot_velocity[[0, 2]],

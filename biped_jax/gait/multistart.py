@@ -12,13 +12,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import checks
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import verdict
 from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import nlp
 
 
-def coarse_settings(settings: gait.GaitSettings, factor: int = 4) -> gait.GaitSettings:
+def coarse_settings(settings: gait_problem.GaitSettings, factor: int = 4) -> gait_problem.GaitSettings:
     """The reference space ``factor`` times coarser (fewer knot spans, the same grading, so the fine
     space contains it when ``spans`` is a multiple of ``factor``), on a grid with as many steps per
     span, shot in as many segments as divide both (multiple shooting kept where it fits): the
@@ -27,16 +27,16 @@ def coarse_settings(settings: gait.GaitSettings, factor: int = 4) -> gait.GaitSe
     return dataclasses.replace(settings, spans=spans, segments=math.gcd(spans, settings.segments))
 
 
-def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitModel],
-                     families=gait.START_FAMILIES, coarse: GaitSolver | None = None,
+def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait_problem.GaitModel],
+                     families=gait_problem.START_FAMILIES, coarse: GaitSolver | None = None,
                      progress: Callable[[str, int, dict], None] | None = None,
                      finished: Callable[[str, int], None] | None = None) -> list[GaitSolution]:
     """Globalisation by many starts (and optionally continuation in the reference space).
 
-    Every model from every heuristic family in ``families`` (:data:`gait.START_FAMILIES`) in one
+    Every model from every heuristic family in ``families`` (:data:`gait_problem.START_FAMILIES`) in one
     batch; per model the best converged start (else the least violated) is kept. With ``coarse``, that
     batch runs in the coarse space and the kept starts are carried into the fine space
-    (:func:`gait.project`) and solved there, all models in one batch (the study's way: the coarse
+    (:func:`gait_problem.project`) and solved there, all models in one batch (the study's way: the coarse
     stage is cheap). Without it the starts are solved in the fine space directly (measured on M2:
     every family solved in the 4-span space reaches the same J = 4.62 family, which the fine space
     then keeps, so the coarse stage narrows the search). Each returned solution
@@ -45,10 +45,11 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitM
     "refined space"); ``finished(stage, problems)`` is called when a stage has solved all its problems.
     """
     fine.check_batch(names, models)
-    families = checks.sequence("families", families, gait.StartFamily, "start family (gait.START_FAMILIES)")
+    families = checks.sequence("families", families, gait_problem.StartFamily,
+                               "start family (gait_problem.START_FAMILIES)")
     count = len(families)
     first_solver = coarse or fine
-    x0 = jnp.stack([gait.initial_guess(m, first_solver.settings, fine.leg_length, family=f)
+    x0 = jnp.stack([gait_problem.initial_guess(m, first_solver.settings, fine.leg_length, family=f)
                     for m in models for f in families])
     tagged = (lambda stage: (lambda i, row: progress(stage, i, row))) if progress else (lambda stage: None)
     first = first_solver.solve([f"{n} / {f.name}" for n in names for f in families],
@@ -64,7 +65,7 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait.GaitM
         best = min(feasible, key=lambda s: s.cost) if feasible else min(group, key=lambda s: s.max_violation)
         best_solutions.append(best)
         if coarse is not None:
-            chosen.append(gait.project(best.x, coarse.settings, fine.settings, best.trajectory))
+            chosen.append(gait_problem.project(best.x, coarse.settings, fine.settings, best.trajectory))
     if coarse is None:
         solutions = [dataclasses.replace(s, name=n) for s, n in zip(best_solutions, names)]
     else:

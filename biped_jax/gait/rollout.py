@@ -7,7 +7,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step
 from biped_jax.dynamics.stance import stance_dynamics
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
 from biped_jax.gait.splines import grid, reference, simpson_weights, stance_nodes
@@ -83,11 +83,11 @@ def time_scale(step_time):
     return jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
 
 
-def simulate(x: jax.Array, model: GaitModel, biped: hs.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
+def simulate(x: jax.Array, model: GaitModel, biped: hybrid_step.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
     """One rollout of the step (pure; vmap over x and model): the prescribed joints, the stance
     angle's zero dynamics by RK4 from every shooting node over its segment (all segments at once),
     the outputs at every grid point (a segment's first point takes its node's state)."""
-    biped = hs.with_design(biped, model.design)
+    biped = hybrid_step.with_design(biped, model.design)
     dynamics = stance_dynamics(biped, settings.dynamics)
     step_time = model.step_length / model.speed
     segments, per_segment = settings.segments, settings.steps // settings.segments

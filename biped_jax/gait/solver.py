@@ -15,8 +15,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import checks
-from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.dynamics import hybrid_step
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import segmented, verdict
 from biped_jax.optim import nlp
 from biped_jax.optim import exact_derivatives
@@ -83,7 +83,7 @@ class GaitSolution:
       multipliers_eq, multipliers_in: the solver's multipliers of the scaled constraints at the
         optimum (see :func:`biped_jax.optim.nlp.optimal_value_gradient`).
       refinement: the refinement check (:func:`~biped_jax.gait.verdict.refinement_records`): J and
-        violations on a grid ``gait.REFINEMENT`` times finer, the same decision vector.
+        violations on a grid ``gait_problem.REFINEMENT`` times finer, the same decision vector.
       starts: from :func:`solve_multistart`, every start's family, status and cost (the spread over
         starts: does the optimum look unique?).
     """
@@ -103,7 +103,7 @@ class GaitSolution:
     gradients: int
     wall_time_s: float
     x: np.ndarray
-    trajectory: gait.GaitTrajectory
+    trajectory: gait_problem.GaitTrajectory
     history: list
     multipliers_eq: np.ndarray
     multipliers_in: np.ndarray
@@ -140,43 +140,43 @@ class GaitSolver:
     solution has the check.
     """
 
-    def __init__(self, settings: gait.GaitSettings = gait.GaitSettings(),
+    def __init__(self, settings: gait_problem.GaitSettings = gait_problem.GaitSettings(),
                  options: ip.InteriorPointOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
                  require_refinement: bool = True, check_refinement: bool = True):
-        if not isinstance(settings, gait.GaitSettings):
+        if not isinstance(settings, gait_problem.GaitSettings):
             raise TypeError(f"settings must be a GaitSettings, got {type(settings).__name__}")
         _check_options(options)
         self.settings, self.options = settings, options
         self.require_refinement = require_refinement and check_refinement
         self.check_refinement = check_refinement
-        self.biped = hs.load_planar_biped(mass_class_template)  # designs replace its masses
+        self.biped = hybrid_step.load_planar_biped(mass_class_template)  # designs replace its masses
         self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
         biped, settings_ = self.biped, settings
 
         def residuals(x, model):
-            trajectory = gait.simulate(x, model, biped, settings_)
-            equalities, inequalities = gait.scaled_constraints(
-                gait.constraint_groups(trajectory, model, settings_))
-            return gait.cost_residuals(trajectory, model.drives), equalities, inequalities
+            trajectory = gait_problem.simulate(x, model, biped, settings_)
+            equalities, inequalities = gait_problem.scaled_constraints(
+                gait_problem.constraint_groups(trajectory, model, settings_))
+            return gait_problem.cost_residuals(trajectory, model.drives), equalities, inequalities
 
         self.problem = nlp.ConstrainedProblem.from_residuals(residuals)
 
-        def limit_problem(x_limit, params: gait.LimitParams):
+        def limit_problem(x_limit, params: gait_problem.LimitParams):
             # (x, t): minimise t + w J with every constraint at M_W = t M_W0
             x, t = x_limit[:-1], x_limit[-1]
-            energy, h, g = self.problem.evaluate(x, gait.with_limit_fraction(params.model, t))
+            energy, h, g = self.problem.evaluate(x, gait_problem.with_limit_fraction(params.model, t))
             return t + params.energy_weight * energy, h, g
 
         self.limit_problem = nlp.ConstrainedProblem(limit_problem)
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
         self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
 
-        self.refined_settings = gait.refined(settings)
+        self.refined_settings = gait_problem.refined(settings)
         # the report's rollouts and verdict numbers, a batch per call: one program per grid and report_batch
         self._checks = {grid: jax.jit(jax.vmap(functools.partial(verdict.rollout_check, biped=biped, settings=grid)))
                         for grid in (settings, self.refined_settings)}
         self._initial_guess = jax.jit(jax.vmap(functools.partial(
-            gait.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
+            gait_problem.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
 
     def with_options(self, **changes) -> "GaitSolver":
         """A solver sharing this one's compiled functions with other interior-point options."""
@@ -213,9 +213,9 @@ class GaitSolver:
         return ip.solve(problem, x0, batch, options, structure=structure,
                         compiled=self._interior[key], multipliers=multipliers, progress=progress)
 
-    def check(self, x, models: gait.GaitModel, refined: bool = False) -> verdict.GridCheck:
+    def check(self, x, models: gait_problem.GaitModel, refined: bool = False) -> verdict.GridCheck:
         """The batch ``x`` (B, n) re-simulated on the solve grid (``refined``: the refinement check's,
-        ``gait.REFINEMENT`` times finer) with every group's violation, J and finiteness, in one vmapped
+        ``gait_problem.REFINEMENT`` times finer) with every group's violation, J and finiteness, in one vmapped
         program (batches padded to :func:`report_batch`, sharded over the devices as the solve's);
         ``models`` with leading dimension B. Numpy leaves with leading dimension B."""
         x = jnp.asarray(x, dtype=jnp.result_type(float))
@@ -229,11 +229,11 @@ class GaitSolver:
         checked = self._checks[self.refined_settings if refined else self.settings](x, models)
         return jax.tree.map(lambda a: np.asarray(a)[:batch], checked)
 
-    def simulate(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
+    def simulate(self, x, models: gait_problem.GaitModel) -> gait_problem.GaitTrajectory:
         """Batched rollout: x (B, n), models with leading dimension B; numpy leaves (B, ...)."""
         return self.check(x, models).trajectory
 
-    def simulate_refined(self, x, models: gait.GaitModel) -> gait.GaitTrajectory:
+    def simulate_refined(self, x, models: gait_problem.GaitModel) -> gait_problem.GaitTrajectory:
         """:meth:`simulate` on the refinement check's grid (4x finer)."""
         return self.check(x, models, refined=True).trajectory
 
@@ -243,7 +243,7 @@ class GaitSolver:
         n = ``settings.size``, ``multipliers`` None or (equalities (B, m_h), inequalities (B, m_g)).
         Raises TypeError / ValueError naming the argument; returns x0 as a numpy array (or None)."""
         names = checks.sequence("names", names, str, "label (str)")
-        models = checks.sequence("models", models, gait.GaitModel, "GaitModel (from gait_model)")
+        models = checks.sequence("models", models, gait_problem.GaitModel, "GaitModel (from gait_model)")
         size = checks.same_length(names=names, models=models)
         n = self.settings.size
         if x0 is not None:
@@ -257,7 +257,7 @@ class GaitSolver:
                 checks.finite_array(label, value, (size, None), ": one row per model")
         return x0
 
-    def solve(self, names: list[str], models: list[gait.GaitModel], x0=None,
+    def solve(self, names: list[str], models: list[gait_problem.GaitModel], x0=None,
               progress: Callable[[int, dict], None] | None = None, multipliers=None) -> list[GaitSolution]:
         """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts, and so do
         ``multipliers`` (equalities (B, m_h), inequalities (B, m_g): those of solutions of the same
@@ -268,7 +268,7 @@ class GaitSolver:
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
         return self._report(names, batch, self._interior_point("energy", x0, batch, progress, multipliers))
 
-    def minimise_power_limit(self, names: list[str], models: list[gait.GaitModel], x0,
+    def minimise_power_limit(self, names: list[str], models: list[gait_problem.GaitModel], x0,
                              progress: Callable[[int, dict], None] | None = None,
                              energy_weights: tuple = LIMIT_ENERGY_WEIGHTS) -> list[GaitSolution]:
         """The smallest power limit M_W at which each model walks: the interior point (all models in one
@@ -316,7 +316,7 @@ class GaitSolver:
         # Hessian with a thousand times the curvature the optimum's few active rows carry
         first = dataclasses.replace(self.options, mu_based_multipliers=True)
         for k, weight in enumerate(energy_weights):
-            params = gait.LimitParams(batch, jnp.asarray(weight / j0, dtype=jnp.result_type(float)))
+            params = gait_problem.LimitParams(batch, jnp.asarray(weight / j0, dtype=jnp.result_type(float)))
             options = first if k == 0 else dataclasses.replace(first, mu_initial=LIMIT_WARM_MU)
             if progress:
                 stage = lambda i, row, w=weight: progress(i, {**row, "energy_weight": w})  # noqa: E731
@@ -329,7 +329,7 @@ class GaitSolver:
             gradients=sum(r.gradients for r in stages), wall_time_s=sum(r.wall_time_s for r in stages),
             history=[row for r in stages for row in r.history])
 
-    def _report(self, names: list[str], batch: gait.GaitModel, result: nlp.SolveResult,
+    def _report(self, names: list[str], batch: gait_problem.GaitModel, result: nlp.SolveResult,
                 cost_of_rollout: bool = False) -> list[GaitSolution]:
         """GaitSolutions of a solver result on the models ``batch`` (leading dimension B): the batch
         re-simulated and checked on the refined grid by one program per grid, classified, then cut

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.optim import nlp
 
 #: Largest violation accepted, in each constraint group's own unit.
@@ -37,7 +37,7 @@ def refined_tolerance(group: str, power_limit):
     0.1 mm for lengths, 1e-3 rad for angles."""
     if group == "power_limit":
         return REFINED_POWER_FRACTION * power_limit
-    return _REFINED_TOLERANCE[gait.CONSTRAINT_GROUPS[group][1]]
+    return _REFINED_TOLERANCE[gait_problem.CONSTRAINT_GROUPS[group][1]]
 
 
 @jax.tree_util.register_dataclass
@@ -53,19 +53,20 @@ class GridCheck:
       finite: whether the decision vector and the torques are finite (bool).
     """
 
-    trajectory: gait.GaitTrajectory
+    trajectory: gait_problem.GaitTrajectory
     violations: dict
     energy: jax.Array
     finite: jax.Array
 
 
-def rollout_check(x, model: gait.GaitModel, biped, settings: gait.GaitSettings) -> GridCheck:
+def rollout_check(x, model: gait_problem.GaitModel, biped, settings: gait_problem.GaitSettings) -> GridCheck:
     """One decision vector ``x`` (n,) re-simulated on the grid ``settings`` with what the verdict reads
     of it. Pure and traceable: the solver vmaps it over a batch, one program per grid."""
-    trajectory = gait.simulate(x, model, biped, settings)
-    groups = gait.constraint_groups(trajectory, model, settings)
+    trajectory = gait_problem.simulate(x, model, biped, settings)
+    groups = gait_problem.constraint_groups(trajectory, model, settings)
     finite = jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(trajectory.u))
-    return GridCheck(trajectory, gait.violations(groups), gait.joule_energy(trajectory, model.drives), finite)
+    return GridCheck(trajectory, gait_problem.violations(groups), gait_problem.joule_energy(trajectory, model.drives),
+                     finite)
 
 
 def refinement_records(coarse_cost, fine: GridCheck, power_limit, steps: int) -> list[dict]:

@@ -9,8 +9,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step as hs
-from biped_jax.gait import problem as gait
+from biped_jax.dynamics import hybrid_step
+from biped_jax.gait import problem as gait_problem
 
 #: Samples of the reference over the step's phase: fixed, so every gait shares one program.
 PHASE_SAMPLES = 201
@@ -59,15 +59,15 @@ def _reversal_at_end(theta: np.ndarray) -> bool:
     return bool(np.all(np.diff(theta[:top + 1]) > 0) and np.all(np.diff(theta[top:]) <= 0))
 
 
-def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
-                   trajectory: gait.GaitTrajectory, mass_class: str = "12kg") -> GaitReference:
+def gait_reference(x, model: gait_problem.GaitModel, settings: gait_problem.GaitSettings,
+                   trajectory: gait_problem.GaitTrajectory, mass_class: str = "12kg") -> GaitReference:
     """The reference of a solved step (decision vector ``x``, its ``trajectory``, solved for the planar
     biped of ``mass_class``); raises ValueError if the stance angle does not advance monotonically
     (then it cannot phase the gait), except for a backward travel of at most :data:`PHASE_REVERSAL` of
     its range after its maximum (the phase clock is then flat there)."""
     x = np.asarray(x)
     phase = np.linspace(0.0, 1.0, PHASE_SAMPLES)
-    joints = np.asarray(gait.reference(jnp.asarray(x), settings, phase)[0])
+    joints = np.asarray(gait_problem.reference(jnp.asarray(x), settings, phase)[0])
     step_time = float(model.step_length / model.speed)
     grid = np.asarray(trajectory.t) / step_time
     theta = np.asarray(trajectory.q)[:, 0]
@@ -94,16 +94,16 @@ def gait_reference(x, model: gait.GaitModel, settings: gait.GaitSettings,
                          speed=jnp.asarray(float(model.speed)))
 
 
-def clearance_offset(model: gait.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray,
+def clearance_offset(model: gait_problem.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray,
                      mass_class: str = "12kg") -> np.ndarray:
     """Offsets of (H1, K1, H2, K2), shape (S, 4), rad, that lift the swing foot to at least the clearance
     profile where the optimal step (its states ``q`` (T + 1, 5) at phases ``grid``) runs lower, without
     moving it forward: a damped least-squares step (:data:`CLEARANCE_DAMPING`) on the swing foot's (x, z)
     Jacobian with respect to (hip2, knee2), which is singular with a straight swing leg. The geometry is
     that of ``mass_class``'s planar biped; the masses are the gait's design."""
-    biped = hs.with_design(hs.load_planar_biped(mass_class), model.design)
+    biped = hybrid_step.with_design(hybrid_step.load_planar_biped(mass_class), model.design)
     states = jnp.asarray(np.column_stack([np.interp(phase, grid, q[:, k]) for k in range(q.shape[1])]))
-    foot = lambda q_: hs.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
+    foot = lambda q_: hybrid_step.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
     jacobians = np.asarray(jax.vmap(jax.jacfwd(foot))(states))[:, :, 3:5]
     height = np.asarray(jax.vmap(foot)(states))[:, 1]
     profile = SWING_CLEARANCE * np.minimum(1.0, np.minimum(phase, 1.0 - phase) / CLEARANCE_RAMP)

@@ -12,7 +12,7 @@ import mujoco
 import numpy as np
 
 from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step as hs
+from biped_jax.dynamics import hybrid_step
 from biped_jax.robots import planar_biped
 from biped_jax.humanoid.controller import (
     DEFAULT_GAINS,
@@ -112,7 +112,7 @@ def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitRefer
     qd0 = np.zeros(5)
     qd0[0] = reference.stance_angle_slope[0] / step_time
     qd0[planar_biped.ACTUATED_INDEX] = np.asarray(reference.joint_slope[0]) / step_time
-    pinned = hs.load_planar_biped(mass_class).pinned
+    pinned = hybrid_step.load_planar_biped(mass_class).pinned
     qf, qfd = (np.asarray(a) for a in impact.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
     qpos, qvel = np.zeros(mj_model.nq), np.zeros(mj_model.nv)
     columns = sagittal_columns(layout, 0)

@@ -18,8 +18,8 @@ from typing import Callable
 import numpy as np
 
 from biped_jax.codesign import problem as codesign
-from biped_jax.drives import model as drives
-from biped_jax.gait import problem as gait
+from biped_jax.drives import model as drive_model
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import GaitSolver
 from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
@@ -74,14 +74,15 @@ def mass_scaling(solver: GaitSolver, say) -> dict:
     for speed in SPEEDS:
         say(f"(a) the paper's 12 kg robot at {speed} m/s from the heuristic start")
         reference, = codesign.solve_designs(
-            _cold(solver), [codesign.catalogue_design(supply_voltage=drives.NO_VOLTAGE_LIMIT)], speed,
-            gait.NO_POWER_LIMIT, summary=say)
+            _cold(solver), [codesign.catalogue_design(supply_voltage=drive_model.NO_VOLTAGE_LIMIT)], speed,
+            gait_problem.NO_POWER_LIMIT, summary=say)
         for mass in MASSES:
-            designs.append(codesign.catalogue_design(total_mass=float(mass), supply_voltage=drives.NO_VOLTAGE_LIMIT))
+            designs.append(codesign.catalogue_design(total_mass=float(mass),
+                                                     supply_voltage=drive_model.NO_VOLTAGE_LIMIT))
             speeds.append(speed)
             starts.append(reference.x)
     say("(a) 8 masses x 2 speeds")
-    solutions = codesign.solve_designs(solver, designs, speeds, gait.NO_POWER_LIMIT, x0=np.stack(starts),
+    solutions = codesign.solve_designs(solver, designs, speeds, gait_problem.NO_POWER_LIMIT, x0=np.stack(starts),
                                        summary=say)
     records = [codesign.design_record(d, s) for d, s in zip(designs, solutions)]
     fits = {}
@@ -102,7 +103,7 @@ def speed_limits(solver: GaitSolver, x_start, say, bisections: int = 5, low: flo
                  high: float = 1.2) -> dict:
     """Study (b): per ratio, the highest speed (bisection between ``low`` and ``high`` m/s, step length
     0.2 m) with a converged gait under the voltage limit (42 V winding at 38 V) and M_W = 20 W."""
-    catalogue = drives.load_catalogue()
+    catalogue = drive_model.load_catalogue()
     designs = [codesign.catalogue_design("RE25-42V", g, catalogue=catalogue) for g in SPEED_GEARHEADS]
     feasible = np.full(BATCH, math.nan)
     lower, upper = np.full(BATCH, low), np.full(BATCH, high)
@@ -144,7 +145,7 @@ def pareto(solver: GaitSolver, x_start, say) -> dict:
     """Study (c): every winding x ratio of the lists above at 0.555 m/s, M_W = 20 W, 38 V, warm-started
     from ``x_start``: Joule energy per metre against robot mass, and the Pareto front of the converged
     designs."""
-    catalogue = drives.load_catalogue()
+    catalogue = drive_model.load_catalogue()
     pairs = [(w, g) for w in WINDINGS for g in PARETO_GEARHEADS]
     records = []
     for start in range(0, len(pairs), BATCH):
@@ -164,7 +165,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
     """Study (d): gear ratios per joint for the 42 V winding at M2 (0.555 m/s, 20 W, 38 V) from 16
     uniform starts (14:1 to 190:1), co-optimised with the gait, then snapped to the nearest catalogue
     gearhead per joint and re-solved."""
-    catalogue = drives.load_catalogue()
+    catalogue = drive_model.load_catalogue()
     starts = [codesign.with_ratio(codesign.catalogue_design(), np.full(4, t), catalogue)
               for t in np.linspace(np.log(14.0), np.log(190.0), BATCH)]
     path = codesign.co_optimise(solver, starts, SPEEDS[1], POWER_LIMIT, x0=np.tile(x_start, (BATCH, 1)),
@@ -185,7 +186,8 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
             "snapped": records, "best": best}
 
 
-def run_codesign(out: Path, settings: gait.GaitSettings = gait.GaitSettings(dynamics="chain"), iterations: int = 5,
+def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.GaitSettings(dynamics="chain"),
+                 iterations: int = 5,
                  progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
     """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png.
     The batched interior point solves every batch: :data:`IP_OPTIONS` for the reference gait,

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.donald import model as donald
-from biped_jax.drives import model as drives
+from biped_jax.drives import model as drive_model
 from biped_jax.drives.model import RPM
 from biped_jax.report import outputs
 
@@ -20,7 +20,7 @@ FINAL_STAND = 1.0
 
 def walk(steps: int = 8, gait: donald.DonaldGait = donald.DEFAULT_GAIT,
          gains: donald.Gains = donald.DEFAULT_GAINS,
-         duration: float | None = None) -> tuple[donald.DonaldRun, drives.JointDrives]:
+         duration: float | None = None) -> tuple[donald.DonaldRun, drive_model.JointDrives]:
     """Simulates ``steps`` steps of ``gait`` and a final stand in MJX, for ``duration`` s (default: the
     gait's steps plus :data:`FINAL_STAND`; walks of one duration share one compiled program)."""
     if steps < 1:
@@ -73,14 +73,14 @@ def plot_walk(run: donald.DonaldRun, path: Path) -> None:
     plt.close(figure)
 
 
-def plot_torque_speed(run: donald.DonaldRun, drive: drives.JointDrives, path: Path) -> None:
+def plot_torque_speed(run: donald.DonaldRun, drive: drive_model.JointDrives, path: Path) -> None:
     """Joint torque against joint speed for every joint, with the drive's limits (speed-torque lines
     at +-V_s through the gear, and the gear's torque limit)."""
     plt = outputs.pyplot()
     speed, torque = np.asarray(run.joint_speed), np.asarray(run.torque)
     figure, axes = plt.subplots(1, 5, figsize=(18, 4), sharey=True, constrained_layout=True)
     line_speed = np.linspace(-5.0, 5.0, 201)
-    low, high = (np.asarray(a) for a in drives.torque_limits(drive, jnp.asarray(line_speed)))
+    low, high = (np.asarray(a) for a in drive_model.torque_limits(drive, jnp.asarray(line_speed)))
     for k, (axis, name) in enumerate(zip(axes, donald.DONALD_ACTUATED_JOINTS)):
         axis.plot(line_speed / RPM, high, "r-", lw=1, label=f"drive limit at {float(drive.supply_voltage):g} V")
         axis.plot(line_speed / RPM, low, "r-", lw=1)

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax import humanoid
 from biped_jax.report import outputs
 from biped_jax.studies import paper as study
@@ -21,7 +21,7 @@ from biped_jax.studies import paper as study
 PAPER_DRIVE = ("RE25-42V", 66.22)
 
 
-def paper_model(name: str) -> tuple[str, gait.GaitModel]:
+def paper_model(name: str) -> tuple[str, gait_problem.GaitModel]:
     """(mass class, problem) of one of the paper's models M1-M4."""
     rows = {r.name: r for r in study.PAPER_MODELS}
     if name not in rows:
@@ -29,8 +29,8 @@ def paper_model(name: str) -> tuple[str, gait.GaitModel]:
     return rows[name].mass_class, study.paper_gait_models([rows[name]])[0]
 
 
-def solved_gait(name: str, settings: gait.GaitSettings, gaits: Path | None,
-                progress: Callable[[str], None]) -> tuple[np.ndarray, gait.GaitSettings, str]:
+def solved_gait(name: str, settings: gait_problem.GaitSettings, gaits: Path | None,
+                progress: Callable[[str], None]) -> tuple[np.ndarray, gait_problem.GaitSettings, str]:
     """(decision vector, settings, status) of model ``name``: read from ``gaits``/results.json (written by
     ``biped-jax reproduce``) when given, else solved here."""
     if gaits is not None:
@@ -40,7 +40,7 @@ def solved_gait(name: str, settings: gait.GaitSettings, gaits: Path | None,
         try:
             results = json.loads(source.read_text())
             records = {r["model"]: r for r in results["models"]}
-            saved = gait.GaitSettings(**results["settings"])
+            saved = gait_problem.GaitSettings(**results["settings"])
         except ValueError as error:  # JSONDecodeError is one; so are GaitSettings' checks
             raise ValueError(f"{source}: not a study result of `biped-jax reproduce` ({error})") from None
         except (KeyError, TypeError) as error:
@@ -119,21 +119,22 @@ def free_base_qpos(qpos: np.ndarray) -> np.ndarray:
     return np.column_stack([x, zeros, z, np.cos(pitch / 2), zeros, np.sin(pitch / 2), zeros, qpos[:, 3:]])
 
 
-def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.GaitSettings = gait.GaitSettings(),
+def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
+                 settings: gait_problem.GaitSettings = gait_problem.GaitSettings(),
                  gaits: Path | None = None, progress: Callable[[str], None] | None = None) -> dict:
     """Replays model ``name``'s optimal step for ``steps`` steps; writes humanoid.json, humanoid_walk.png,
     humanoid_tracking.png, humanoid_torque_speed.png and humanoid_replay.npz."""
-    from biped_jax.drives import model as drives
+    from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection as drive_selection
-    from biped_jax.dynamics import hybrid_step as hs
+    from biped_jax.dynamics import hybrid_step
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     mass_class, model = paper_model(name)
     x, settings, status = solved_gait(name, settings, gaits, say)
     if status != "converged":
         say(f"warning: the {name} gait did not converge ({status}); replaying it anyway")
-    biped = hs.load_planar_biped(mass_class)
-    trajectory = jax.jit(lambda x_, m: gait.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
+    biped = hybrid_step.load_planar_biped(mass_class)
+    trajectory = jax.jit(lambda x_, m: gait_problem.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
     reference = humanoid.gait_reference(x, model, settings, trajectory, mass_class)
     say(f"compiling the humanoid's contact simulation and walking {steps} steps")
     run = humanoid.replay(reference, mass_class, steps, progress=say)
@@ -150,7 +151,8 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10, settings: gait.Ga
     workspace = drive_selection.JointWorkspace(t=run.t, speed=run.qvel[:, layout.sagittal_q], torque=torque,
                                                step_time=float(run.t[-1]))  # the whole walk: no window
     winding, ratio = PAPER_DRIVE
-    drive_selection.plot_motor_workspace(workspace, drives.load_catalogue(), (ratio,), f"humanoid replay of {name}",
+    drive_selection.plot_motor_workspace(workspace, drive_model.load_catalogue(), (ratio,),
+                                         f"humanoid replay of {name}",
                                          out / "humanoid_torque_speed.png", windings=(winding,), window=0.0)
     outputs.save_npz(out / "humanoid_replay.npz", compressed=True, t=run.t, qpos=free_base_qpos(run.qpos))
     return report

@@ -22,7 +22,7 @@ from typing import Callable
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import report as gait_report
 from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import interior_point as ip
@@ -34,11 +34,11 @@ STEP_LENGTH = 0.5  # m
 STEP_TIME = 0.7  # s
 TORQUE_BOUND = 100.0  # N m, Kelly's uMax
 #: Friction coefficient standing for "no limit": the cone then only keeps F_z >= 0.
-NO_FRICTION_LIMIT = gait.NO_FRICTION_LIMIT
+NO_FRICTION_LIMIT = gait_problem.NO_FRICTION_LIMIT
 #: Power limit standing for "none", W.
-NO_POWER_LIMIT = gait.NO_POWER_LIMIT
+NO_POWER_LIMIT = gait_problem.NO_POWER_LIMIT
 #: Settings of the benchmark: 16 cubic knot spans, a shooting segment per span, with Kelly's bounds.
-KELLY_SETTINGS = gait.GaitSettings(spans=16, degree=3, substeps=4, torque_bound=TORQUE_BOUND,
+KELLY_SETTINGS = gait_problem.GaitSettings(spans=16, degree=3, substeps=4, torque_bound=TORQUE_BOUND,
                                    friction=NO_FRICTION_LIMIT, knee_max=3.0, segments=16)
 #: The batched interior point solves every start in one batch.
 KELLY_OPTIONS = ip.InteriorPointOptions()
@@ -48,26 +48,26 @@ START_LIFTS = (0.3, 0.5, 0.8, 1.1)
 ACTIVE_MARGIN = 1e-3
 
 
-def kelly_model() -> gait.GaitModel:
+def kelly_model() -> gait_problem.GaitModel:
     """The benchmark as a gait problem (speed L / T, no power limit)."""
-    return gait.gait_model("kelly", STEP_LENGTH / STEP_TIME, NO_POWER_LIMIT, STEP_LENGTH)
+    return gait_problem.gait_model("kelly", STEP_LENGTH / STEP_TIME, NO_POWER_LIMIT, STEP_LENGTH)
 
 
-def starts(model: gait.GaitModel, settings: gait.GaitSettings) -> jnp.ndarray:
+def starts(model: gait_problem.GaitModel, settings: gait_problem.GaitSettings) -> jnp.ndarray:
     """Heuristic starting points, one per swing lift of :data:`START_LIFTS`, shape (len, n)."""
-    return jnp.stack([gait.initial_guess(model, settings, KELLY_BIPED.leg_length, swing_lift=lift)
+    return jnp.stack([gait_problem.initial_guess(model, settings, KELLY_BIPED.leg_length, swing_lift=lift)
                       for lift in START_LIFTS])
 
 
-def active_constraints(solution: GaitSolution, settings: gait.GaitSettings,
+def active_constraints(solution: GaitSolution, settings: gait_problem.GaitSettings,
                        margin: float = ACTIVE_MARGIN) -> list[str]:
     """Inequality groups with some residual within ``margin`` of its bound at the solution."""
-    groups = gait.constraint_groups(solution.trajectory, kelly_model(), settings)
-    return [name for name, (kind, _) in gait.CONSTRAINT_GROUPS.items()
+    groups = gait_problem.constraint_groups(solution.trajectory, kelly_model(), settings)
+    return [name for name, (kind, _) in gait_problem.CONSTRAINT_GROUPS.items()
             if kind == "inequality" and np.size(groups[name]) and float(np.max(groups[name])) > -margin]
 
 
-def solve_kelly(settings: gait.GaitSettings = KELLY_SETTINGS,
+def solve_kelly(settings: gait_problem.GaitSettings = KELLY_SETTINGS,
                 progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
     """Solves the benchmark from every start of :func:`starts` in one batch; best (converged, then
     cheapest) first."""
@@ -78,16 +78,16 @@ def solve_kelly(settings: gait.GaitSettings = KELLY_SETTINGS,
     return sorted(solutions, key=lambda s: (s.status != nlp.CONVERGED, s.cost))
 
 
-def refine(solution: GaitSolution, settings: gait.GaitSettings,
+def refine(solution: GaitSolution, settings: gait_problem.GaitSettings,
            progress: Callable[[int, dict], None] | None = None) -> GaitSolution:
     """Re-solves on a grid twice as fine, warm-started from ``solution`` (the decision vector does not
     depend on the grid)."""
-    solver = GaitSolver(gait.refined(settings, 2), KELLY_OPTIONS, mass_class_template="kelly")
+    solver = GaitSolver(gait_problem.refined(settings, 2), KELLY_OPTIONS, mass_class_template="kelly")
     fine, = solver.solve(["kelly"], [kelly_model()], x0=jnp.asarray(solution.x)[None], progress=progress)
     return fine
 
 
-def kelly_record(solutions: list[GaitSolution], fine: GaitSolution, settings: gait.GaitSettings) -> dict:
+def kelly_record(solutions: list[GaitSolution], fine: GaitSolution, settings: gait_problem.GaitSettings) -> dict:
     """kelly.json: the fine-grid solution's cost, status and violations, its refinement check (J on a
     grid four times finer again), the coarse grid's cost and every start's outcome. The quadrature and
     the integrator are 4th order, so the coarse, fine and refined costs agree to the digits shown
@@ -97,12 +97,12 @@ def kelly_record(solutions: list[GaitSolution], fine: GaitSolution, settings: ga
     record.update({
         "benchmark": "Kelly 2017, five-link biped, SIAM Review 59(4) Section 7",
         "cost_unit": "N^2 m^2 s",
-        "steps": gait.refined(settings, 2).steps,
+        "steps": gait_problem.refined(settings, 2).steps,
         "cost_coarse": coarse.cost,
         "steps_coarse": settings.steps,
         "cost_refined": fine.refinement["cost"],
         "steps_refined": fine.refinement["steps"],
-        "active_constraints": active_constraints(fine, gait.refined(settings, 2)),
+        "active_constraints": active_constraints(fine, gait_problem.refined(settings, 2)),
         "settings": dataclasses.asdict(settings),
         "starts": [{"name": s.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation}
                    for s in solutions],
@@ -110,7 +110,7 @@ def kelly_record(solutions: list[GaitSolution], fine: GaitSolution, settings: ga
     return record
 
 
-def run_kelly(out: Path, settings: gait.GaitSettings = KELLY_SETTINGS,
+def run_kelly(out: Path, settings: gait_problem.GaitSettings = KELLY_SETTINGS,
               progress: Callable[[str], None] | None = None) -> dict:
     """Solves the benchmark on ``settings``' grid and one twice as fine; writes kelly.json and
     kelly_step.png (angles, rates, torques, power of the fine-grid step)."""
@@ -124,7 +124,8 @@ def run_kelly(out: Path, settings: gait.GaitSettings = KELLY_SETTINGS,
     say(f"compiling and solving Kelly's five-link biped on {settings.steps} Runge-Kutta steps from "
         f"{len(START_LIFTS)} starts in one batch")
     solutions = solve_kelly(settings, progress=report)
-    say(f"{solutions[0].status}, J = {solutions[0].cost:.2f}; refining on {gait.refined(settings, 2).steps} steps")
+    steps = gait_problem.refined(settings, 2).steps
+    say(f"{solutions[0].status}, J = {solutions[0].cost:.2f}; refining on {steps} steps")
     fine = refine(solutions[0], settings, progress=report)
     record = kelly_record(solutions, fine, settings)
     outputs.write_json(out / "kelly.json", record)

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.drives import selection as drive_selection
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import report as gait_report
 from biped_jax.gait import multistart
 from biped_jax.gait import verdict
@@ -20,6 +20,7 @@ from biped_jax.gait.solver import LIMIT_ENERGY_WEIGHTS, GaitSolution, GaitSolver
 from biped_jax.optim import interior_point as ip
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
+from biped_jax.studies import drive_train
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,14 +38,14 @@ PAPER_MODELS = (PaperModel("M1", "12kg", 0.417, 20.0), PaperModel("M2", "12kg", 
                 PaperModel("M3", "18kg", 0.417, 25.0), PaperModel("M4", "18kg", 0.555, 40.0))
 
 
-def paper_gait_models(rows, power_limits=None, step_length: float = 0.2) -> list[gait.GaitModel]:
+def paper_gait_models(rows, power_limits=None, step_length: float = 0.2) -> list[gait_problem.GaitModel]:
     """The gait problems of ``rows`` (:data:`PAPER_MODELS` or some of them), at their own power limits
     or at ``power_limits`` (W, one per row); step length in m."""
     limits = power_limits if power_limits is not None else [r.power_limit for r in rows]
-    return [gait.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
+    return [gait_problem.gait_model(r.mass_class, r.speed, float(p), step_length) for r, p in zip(rows, limits)]
 
 
-def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], models: list[gait.GaitModel],
+def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], models: list[gait_problem.GaitModel],
                          progress: Callable[[int, dict], None] | None = None,
                          coarse: GaitSolver | None = None) -> list[dict]:
     """The smallest power limit M_W per model (all models in one call): the limit itself minimised over
@@ -75,11 +76,12 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
         def tagged(stage):
             return (lambda i, row: progress(i, {**row, "space": stage})) if progress else None
         if coarse is not None:
-            carried = np.stack([gait.project(s.x, solver.settings, coarse.settings, s.trajectory) for s in rows])
+            carried = np.stack([gait_problem.project(s.x, solver.settings, coarse.settings,
+                                                     s.trajectory) for s in rows])
             first = coarse.minimise_power_limit(names, models, carried, progress=tagged("coarse space"))
             # from the coarse space's gait and limit (2 % above it: the carried gait is close, not equal)
             carried_on = [c.max_violation <= verdict.VIOLATION_TOLERANCE for c in first]
-            x0 = np.stack([gait.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
+            x0 = np.stack([gait_problem.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
                            for c, s, ok in zip(first, rows, carried_on)])
             models = [dataclasses.replace(m, power_limit=jnp.asarray(1.02 * c.power_limit_W)) if ok else m
                       for m, c, ok in zip(models, first, carried_on)]
@@ -115,15 +117,15 @@ def _number(value, spec: str) -> str:
 #: optimum), 48 spans 0.1-0.5 %. The grid: 8 steps per span of 16 (128 in all) left M2's power 0.216 W
 #: (1.08 % of M_W) over the limit between grid points (a 4x finer grid), 192 steps keep that within the
 #: refinement check's 1 %, and a Jacobian's cost grows with the steps, not the spans.
-STUDY_SETTINGS = gait.GaitSettings(spans=48, segments=48, substeps=4)
+STUDY_SETTINGS = gait_problem.GaitSettings(spans=48, segments=48, substeps=4)
 
 #: The study's start families: every heuristic family, the flexed-impact ones included.
-STUDY_FAMILIES = gait.START_FAMILIES + gait.IMPACT_FAMILIES
+STUDY_FAMILIES = gait_problem.START_FAMILIES + gait_problem.IMPACT_FAMILIES
 
 #: ``biped-jax reproduce --quick``: a first look in a few minutes, not the study: 8 knot spans (the
 #: starts in 2), three start families; every file it writes says so (:data:`QUICK_STAMP`).
-QUICK_SETTINGS = gait.GaitSettings(spans=8, segments=8, substeps=6)
-QUICK_FAMILIES = (gait.START_FAMILIES[1], gait.IMPACT_FAMILIES[0], gait.IMPACT_FAMILIES[1])
+QUICK_SETTINGS = gait_problem.GaitSettings(spans=8, segments=8, substeps=6)
+QUICK_FAMILIES = (gait_problem.START_FAMILIES[1], gait_problem.IMPACT_FAMILIES[0], gait_problem.IMPACT_FAMILIES[1])
 QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start families; coarse, not the "
                "study's result")
 
@@ -166,7 +168,7 @@ class StudySolvers:
     families: tuple
 
 
-def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS) -> StudySolvers:
+def study_solvers(settings: gait_problem.GaitSettings = STUDY_SETTINGS) -> StudySolvers:
     """The solvers of :func:`run_study` (and of ``benchmarks/vs_collocation.py``) in ``settings``' space
     and its 4x coarser one."""
     fine = GaitSolver(settings, IP_WARM_OPTIONS)
@@ -175,7 +177,7 @@ def study_solvers(settings: gait.GaitSettings = STUDY_SETTINGS) -> StudySolvers:
     return StudySolvers(fine, coarse, fine.using(IP_POWER_OPTIONS), coarse.using(IP_WARM_OPTIONS), STUDY_FAMILIES)
 
 
-def run_study(out: Path, settings: gait.GaitSettings = STUDY_SETTINGS,
+def run_study(out: Path, settings: gait_problem.GaitSettings = STUDY_SETTINGS,
               progress: Callable[..., None] | None = None, resume: bool = False,
               families: tuple | None = None) -> dict:
     """Solves M1-M4 (many starts in a coarse reference space, then the best per model in ``settings``'
@@ -262,7 +264,7 @@ def power_report(say: Callable[..., None]) -> Callable[[int, dict], None]:
 
 
 def _write_results(out: Path, solutions: list[GaitSolution], at_20: list[GaitSolution], minimal: list[dict],
-                   settings: gait.GaitSettings, solver: GaitSolver, say: Callable[..., None]) -> dict:
+                   settings: gait_problem.GaitSettings, solver: GaitSolver, say: Callable[..., None]) -> dict:
     """The study's files from its three stages: results.json, tables.md, Figs. 2-3, convergence.png,
     trajectories.npz and the drive-train part; returns the results record."""
     names = [s.name for s in solutions]
@@ -299,5 +301,5 @@ def _write_results(out: Path, solutions: list[GaitSolution], at_20: list[GaitSol
     gait_report.plot_convergence(solutions, out / "convergence.png")
     say("drive train: Table 6, selection, Figs. 4-5")
     drive_selection.save_workspaces(out / "trajectories.npz", solutions)
-    results.update(drive_selection.run_drive_study(out, drive_selection.load_workspaces(out / "trajectories.npz")))
+    results.update(drive_train.run_drive_study(out, drive_selection.load_workspaces(out / "trajectories.npz")))
     return results

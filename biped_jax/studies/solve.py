@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Callable
 
 from biped_jax.gait import multistart
-from biped_jax.gait import problem as gait
+from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import report as gait_report
 from biped_jax.report import outputs
 from biped_jax.studies import paper
@@ -34,12 +34,12 @@ class Problem:
     def name(self) -> str:
         return f"{self.mass_class}, {self.speed:g} m/s, L = {self.step_length:g} m, M_W = {self.power_limit:g} W"
 
-    def model(self) -> gait.GaitModel:
+    def model(self) -> gait_problem.GaitModel:
         """The gait problem (ValueError naming a bad value, before anything compiles)."""
-        return gait.gait_model(self.mass_class, self.speed, self.power_limit, self.step_length)
+        return gait_problem.gait_model(self.mass_class, self.speed, self.power_limit, self.step_length)
 
 
-def run_solve(out: Path, problem: Problem, settings: gait.GaitSettings = paper.STUDY_SETTINGS,
+def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings = paper.STUDY_SETTINGS,
               smallest_power_limit: bool = False, progress: Callable[..., None] | None = None) -> dict:
     """Solves ``problem`` in ``settings``' space from every start family of the study and writes
     results.json (the problem, the settings, the solution with its refinement check and every start's
