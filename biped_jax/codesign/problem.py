@@ -23,6 +23,7 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from biped_jax import checks
 from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one co-design namespace
@@ -190,12 +191,15 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
                 progress: Callable[[str], None] | None = None) -> CoOptimisation:
     """Gear ratios per joint co-optimised with the gait, all designs of the batch at once.
 
-    Projected, normalised gradient descent on log N (each joint moves at most ``max_step`` in log N
-    per iteration, inside ``ratio_bounds``), the gradient from the envelope theorem at each re-solved
-    (warm-started) optimum; a step that raises the Joule energy or loses feasibility is undone and
-    the design's step halved. A design is frozen once its step falls below ``min_step`` (log N) or
-    its gait does not converge; the loop ends early when every design is frozen (the batch keeps its
-    shape, so a frozen design is still solved while others move, but its result is not taken).
+    optax's Adam on log N, one optimiser state per design (vmapped), its learning rate the design's
+    step (at first ``max_step``: Adam's first step moves each joint by about the step, later ones by
+    less where the gradient's sign wavers), the update projected onto ``ratio_bounds``
+    (``optax.projections.projection_box``); the gradient from the envelope theorem at each re-solved
+    (warm-started) optimum. A step that raises the Joule energy or loses feasibility is undone (the
+    design keeps its point and optimiser state) and the design's step halved. A design is frozen once
+    its step falls below ``min_step`` (log N) or its gait does not converge; the loop ends early when
+    every design is frozen (the batch keeps its shape, so a frozen design is still solved while others
+    move, but its result is not taken).
     Gear data follow the ratio smoothly (:func:`with_ratio`); snap the result to the catalogue with
     :func:`nearest_gearhead` and re-solve to verify. ``solutions``: the designs' gaits if already solved
     (e.g. by :func:`solve_designs`), else they are solved first.
@@ -216,6 +220,8 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     low, high = np.log(ratio_bounds[0]), np.log(ratio_bounds[1])
     step = np.full(len(designs), max_step)
     apply = jax.jit(jax.vmap(lambda d, t: with_ratio(d, t, catalogue)))
+    adam = optax.inject_hyperparams(optax.adam)(learning_rate=max_step)
+    state = jax.vmap(adam.init)(jnp.asarray(theta))
     if solutions is None:
         solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(theta))), speed, power_limit,
                                   step_length, x0=x0, summary=progress)
@@ -235,14 +241,17 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
             say(f"co-design stopped after {k} iterations: every design converged to its step floor or failed")
             break
         grad = gradient(base, theta, speed, power_limit, step_length, solutions)
-        scale = np.maximum(np.max(np.abs(grad), axis=1, keepdims=True), 1e-12)
-        trial = np.where(moving[:, None], np.clip(theta - step[:, None] * grad / scale, low, high), theta)
+        state.hyperparams["learning_rate"] = jnp.asarray(step)
+        trial, trial_state = _projected_step(adam, jnp.asarray(grad), state, jnp.asarray(theta), low, high)
+        trial = np.where(moving[:, None], np.asarray(trial), theta)
         x_warm = jnp.stack([jnp.asarray(s.x) for s in solutions])
         trial_solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(trial))), speed, power_limit,
                                         step_length, x0=x_warm, summary=progress)
         better = moving & np.array([t.status == nlp.CONVERGED and t.cost < s.cost
                                     for s, t in zip(solutions, trial_solutions)])
         theta = np.where(better[:, None], trial, theta)
+        state = jax.tree.map(lambda new, old: jnp.where(jnp.reshape(jnp.asarray(better), (-1,) + (1,) * (
+            jnp.ndim(new) - 1)), new, old), trial_state, state)
         solutions = [t if b else s for s, t, b in zip(solutions, trial_solutions, better)]
         step = np.where(better | ~moving, step, 0.5 * step)
         record(theta, solutions)
@@ -252,3 +261,9 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     path.designs = unstack(apply(base, jnp.asarray(theta)))
     path.solutions = solutions
     return path
+
+
+def _projected_step(optimiser, grad, state, theta, low, high):
+    """Every design's optax update of ``theta`` (B, 4) with its own state, projected onto [low, high]."""
+    updates, state = jax.vmap(optimiser.update)(grad, state, theta)
+    return optax.projections.projection_box(optax.apply_updates(theta, updates), low, high), state
