@@ -148,10 +148,10 @@ def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> 
 
 
 def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
-    """A problem of docs/gait-problem.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with ideal
-    drives (the paper's problem; ``biped_jax.codesign.problem.design_gait_model`` fits real ones); raises ValueError
-    naming a non-positive speed, limit or length, or a step beyond the legs' reach. Numbers may be
-    Python, numpy or 0-d JAX arrays (concrete: a traced value raises TypeError)."""
+    """A problem of docs/gait-problem.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with
+    ideal drives (the paper's problem; ``biped_jax.codesign.problem.design_gait_model`` fits real ones);
+    raises ValueError naming a non-positive speed, limit or length, or a step beyond the legs' reach.
+    Numbers may be Python, numpy or 0-d JAX arrays (concrete: a traced value raises TypeError)."""
     for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
                               ("step_length", step_length, "m")):
         if isinstance(value, jax.core.Tracer):
