@@ -1,0 +1,82 @@
+"""The smallest feasible power limit of M1-M4 by the collocation peer, found by bisection, against ours.
+
+For each model the peer (``collocation_peer.solve``, CasADi + IPOPT, Hermite-Simpson) solves the energy
+problem at a power limit M_W: a limit is feasible when IPOPT converges. Bisection between an infeasible
+limit and the model's own (feasible) limit, warm-started from the last feasible gait, until the bracket
+is within ``--tolerance`` of its upper end; reported: that upper end (the smallest feasible limit found,
+to the tolerance), on ``--segments`` and on twice as many segments (the peer's limit holds only at its
+knots and midpoints, so its smallest limit moves with the mesh). Ours: the smallest limits of a
+``biped-jax reproduce`` results file (``--ours OUT/results.json``: the interior point's continuation,
+kept on the 4x finer grid), and the ratio ours / peer. Needs the ``bench`` extra (casadi).
+
+    python benchmarks/peer_smallest_limit.py --ours out/results.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+from _results import save_results
+
+
+def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print) -> dict:
+    """Bisection on the peer's power limit between 0 and ``problem.power_limit`` (feasible)."""
+    from collocation_peer import solve
+    started = time.perf_counter()
+    best = solve(problem, segments)
+    if best["status"] != "converged":
+        return {"limit_W": None, "status": f"infeasible at its own limit ({best['status']})", "solves": 1}
+    low, high, solves = 0.0, problem.power_limit, 1
+    while high - low > tolerance * high:
+        middle = 0.5 * (low + high)
+        trial = solve(dataclasses.replace(problem, power_limit=middle), segments, guess=best)
+        solves += 1
+        if trial["status"] == "converged":
+            high, best = middle, trial
+        else:
+            low = middle
+        say(f"  {segments} segments, M_W = {middle:.4f} W: {trial['status']} ({trial['wall_time_s']:.0f} s)")
+    return {"limit_W": high, "infeasible_below_W": low, "cost_at_limit": best["cost"], "solves": solves,
+            "status": "bracketed", "wall_time_s": time.perf_counter() - started}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ours", type=Path, required=True, help="results.json of `biped-jax reproduce`")
+    parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
+    parser.add_argument("--tolerance", type=float, default=0.01, help="the bracket's relative width")
+    parser.add_argument("--one-mesh", action="store_true", help="only --segments (not also twice as many)")
+    parser.add_argument("--name", default="peer_smallest_limit")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = parser.parse_args()
+
+    from collocation_peer import PeerProblem
+
+    from biped_jax.robots.specs import PLANAR_SPECS
+    from biped_jax.studies import paper as study
+
+    ours = {m["model"]: m for m in json.loads(args.ours.read_text())["models"]}
+    rows = []
+    for model in study.PAPER_MODELS:
+        problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
+        meshes = (args.segments,) if args.one_mesh else (args.segments, 2 * args.segments)
+        peer = {n: smallest_feasible_limit(problem, n, args.tolerance,
+                                           say=lambda m: print(m, flush=True)) for n in meshes}
+        mine = ours[model.name]["min_power_limit_W"]
+        row = {"model": model.name, "ours_W": mine, "ours_status": ours[model.name]["min_power_status"],
+               "peer": {str(n): p for n, p in peer.items()}}
+        for n, p in peer.items():
+            row[f"ours_over_peer_{n}"] = None if mine is None or p["limit_W"] is None else mine / p["limit_W"]
+        rows.append(row)
+        print(f"{model.name}: ours {mine} W; peer " + ", ".join(
+            f"{n} segments {p['limit_W']} W ({p['solves']} solves)" for n, p in peer.items()), flush=True)
+        save_results(args.name, {"segments": args.segments, "tolerance": args.tolerance, "ours": str(args.ours)},
+                     rows, args.out)  # after every model: a long run keeps what it found
+
+
+if __name__ == "__main__":
+    main()
