@@ -250,8 +250,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
         better = moving & np.array([t.status == nlp.CONVERGED and t.cost < s.cost
                                     for s, t in zip(solutions, trial_solutions)])
         theta = np.where(better[:, None], trial, theta)
-        state = jax.tree.map(lambda new, old: jnp.where(jnp.reshape(jnp.asarray(better), (-1,) + (1,) * (
-            jnp.ndim(new) - 1)), new, old), trial_state, state)
+        state = _rows_where(better, trial_state, state)
         solutions = [t if b else s for s, t, b in zip(solutions, trial_solutions, better)]
         step = np.where(better | ~moving, step, 0.5 * step)
         record(theta, solutions)
@@ -261,6 +260,13 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     path.designs = unstack(apply(base, jnp.asarray(theta)))
     path.solutions = solutions
     return path
+
+
+def _rows_where(mask, new, old):
+    """Per design (leading axis), ``new``'s leaves where ``mask`` (B,) holds, ``old``'s elsewhere."""
+    def pick(a, b):
+        return jnp.where(jnp.reshape(jnp.asarray(mask), (-1,) + (1,) * (jnp.ndim(a) - 1)), a, b)
+    return jax.tree.map(pick, new, old)
 
 
 def _projected_step(optimiser, grad, state, theta, low, high):

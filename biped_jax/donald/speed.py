@@ -166,11 +166,12 @@ def augmented_lagrangian(objective, inequalities, multipliers, penalty):
 
 def _inner(value, value_and_grad, z, multipliers, options: SpeedOptions):
     """L-BFGS (optax's direction) with a backtracking Armijo search on the augmented Lagrangian at fixed
-    multipliers; returns the last accepted point, the gradient evaluations spent, whether it ended
-    stationary (|gradient|_inf <= ``options.stationarity``) and whether it took a step at all."""
+    multipliers (``value`` and ``value_and_grad`` return it with (f, g) beside); returns the last
+    accepted point, (f, g) there, the gradient evaluations spent, whether it ended stationary
+    (|gradient|_inf <= ``options.stationarity``) and whether it took a step at all."""
     lbfgs = optax.scale_by_lbfgs(memory_size=options.memory)
     state = lbfgs.init(z)
-    current, grad = value_and_grad(z, multipliers)
+    (current, parts), grad = value_and_grad(z, multipliers)
     spent, moved = 1, False
     for _ in range(options.max_inner):
         if float(jnp.max(jnp.abs(grad))) <= options.stationarity:
@@ -182,15 +183,15 @@ def _inner(value, value_and_grad, z, multipliers, options: SpeedOptions):
         step = 1.0
         for _ in range(options.max_backtracks):
             trial = z - step * direction
-            if float(value(trial, multipliers)) <= float(current) + options.armijo * step * slope:
+            if float(value(trial, multipliers)[0]) <= float(current) + options.armijo * step * slope:
                 break
             step *= 0.5
         else:
             break  # no decrease along the direction: noise, not descent
         z, moved = trial, True
-        current, grad = value_and_grad(z, multipliers)
+        (current, parts), grad = value_and_grad(z, multipliers)
         spent += 1
-    return z, spent, float(jnp.max(jnp.abs(grad))) <= options.stationarity, moved
+    return z, parts, spent, float(jnp.max(jnp.abs(grad))) <= options.stationarity, moved
 
 
 def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None) -> dict:
@@ -208,19 +209,21 @@ def minimise(evaluate, z0, options: SpeedOptions = SPEED_OPTIONS, progress=None)
 
     def merit(z, multipliers):
         objective, _, inequalities = differenced(z, None)
-        return augmented_lagrangian(objective, inequalities, multipliers, options.penalty)
+        # (f, g) beside the merit: the loop reads them from the evaluations it makes anyway
+        return augmented_lagrangian(objective, inequalities, multipliers, options.penalty), (objective, inequalities)
 
-    value, value_and_grad, outputs = jax.jit(merit), jax.jit(jax.value_and_grad(merit)), jax.jit(evaluate)
+    value, value_and_grad = jax.jit(merit), jax.jit(jax.value_and_grad(merit, has_aux=True))
     z = jnp.asarray(z0, dtype=jnp.result_type(float))
-    objective, _, inequalities = outputs(z, None)
+    multipliers = jnp.zeros(jax.eval_shape(evaluate, z, None)[2].shape, z.dtype)  # the shape, nothing compiled
+    _, (objective, inequalities) = value(z, multipliers)
     start_cost = float(objective)
-    multipliers, gradients, status, iterates = jnp.zeros_like(inequalities), 0, nlp.ITERATION_LIMIT, []
-    violation = float(jnp.max(jnp.maximum(inequalities, 0.0)))
+    gradients, status, iterates = 0, nlp.ITERATION_LIMIT, []
+    violation = float(nlp.violation(jnp.zeros(0), inequalities))
     for outer in range(options.max_outer):
-        z, spent, stationary, moved = _inner(value, value_and_grad, z, multipliers, options)
+        z, (objective, inequalities), spent, stationary, moved = _inner(value, value_and_grad, z, multipliers,
+                                                                        options)
         gradients += spent
-        objective, _, inequalities = outputs(z, None)
-        violation = float(jnp.max(jnp.maximum(inequalities, 0.0)))
+        violation = float(nlp.violation(jnp.zeros(0), inequalities))
         updated = jnp.maximum(0.0, multipliers + options.penalty * inequalities)
         settled = float(jnp.max(jnp.abs(updated - multipliers))) <= options.tolerance * options.penalty
         multipliers = updated
