@@ -195,6 +195,18 @@ class GaitSolver:
         """The batched interior point on the energy problem (``kind`` "energy") or the smallest power
         limit's ("limit"), its colouring probed at the first problem's start and its programs compiled
         on first use, both kept for later batches of the same shape."""
+        problem, structure = self.prepared(kind, x0, batch)
+        options = options or self.options
+        key = (kind, ip.loop_options(options))
+        if key not in self._interior:
+            self._interior[key] = ip.compile_problem(problem, options)
+        return ip.solve(problem, x0, batch, options, structure=structure,
+                        compiled=self._interior[key], multipliers=multipliers, progress=progress)
+
+    def prepared(self, kind: str, x0, batch) -> tuple[nlp.ConstrainedProblem, exact_derivatives.Structure]:
+        """(the problem as the interior point sees it, its colouring) for ``kind`` "energy" or "limit":
+        probed at the first problem of ``x0`` (B, n) and ``batch`` on first use, then kept (the split by
+        shooting segment replaces the colouring where it needs fewer directions)."""
         if kind not in self._structures:
             problem = self.problem if kind == "energy" else self.limit_problem
             first = jax.tree.map(lambda a: a[0], batch)
@@ -205,13 +217,7 @@ class GaitSolver:
                 if local.directions < structure.colours:
                     problem = dataclasses.replace(problem, local=local)
             self._structures[kind] = (problem, structure)
-        problem, structure = self._structures[kind]
-        options = options or self.options
-        key = (kind, ip.loop_options(options))
-        if key not in self._interior:
-            self._interior[key] = ip.compile_problem(problem, options)
-        return ip.solve(problem, x0, batch, options, structure=structure,
-                        compiled=self._interior[key], multipliers=multipliers, progress=progress)
+        return self._structures[kind]
 
     def check(self, x, models: gait_problem.GaitModel, refined: bool = False) -> verdict.GridCheck:
         """The batch ``x`` (B, n) re-simulated on the solve grid (``refined``: the refinement check's,
@@ -295,13 +301,18 @@ class GaitSolver:
         result = self._limit_continuation(start, batch, progress, weights)
         x = result.x[:, :-1]
         solve_grid = result.x[:, -1] * np.asarray(batch.power_limit)
-        limits = solve_grid
+        limits, fine = solve_grid, None
         if self.check_refinement:
-            fine_power = np.abs(self.simulate_refined(x, batch).joint_power)
-            limits = np.maximum(solve_grid, np.max(fine_power, axis=(1, 2)))
+            # one refined rollout serves both the limit and the check: only the power group's violation
+            # depends on the limit, and it is judged again at the limit kept
+            fine = self.check(x, batch, refined=True)
+            peak = np.max(np.abs(fine.trajectory.joint_power), axis=(1, 2))
+            limits = np.maximum(solve_grid, peak)
+            fine = dataclasses.replace(fine, violations={**fine.violations,
+                                                         "power_limit": np.maximum(peak - limits, 0.0)})
         at_limit = dataclasses.replace(batch, power_limit=jnp.asarray(limits, dtype=jnp.result_type(float)))
         # J (not minimised here) is the re-simulated gait's; it does not depend on the limit
-        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x), cost_of_rollout=True)
+        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x), cost_of_rollout=True, fine=fine)
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
@@ -330,13 +341,14 @@ class GaitSolver:
             history=[row for r in stages for row in r.history])
 
     def _report(self, names: list[str], batch: gait_problem.GaitModel, result: nlp.SolveResult,
-                cost_of_rollout: bool = False) -> list[GaitSolution]:
+                cost_of_rollout: bool = False, fine: verdict.GridCheck | None = None) -> list[GaitSolution]:
         """GaitSolutions of a solver result on the models ``batch`` (leading dimension B): the batch
         re-simulated and checked on the refined grid by one program per grid, classified, then cut
         into one solution per problem. ``cost_of_rollout``: J is the re-simulated gait's, not the
-        solver's objective."""
+        solver's objective. ``fine``: the refined grid's check of ``result.x`` when the caller has it."""
         coarse = self.check(result.x, batch)
-        fine = self.check(result.x, batch, refined=True) if self.check_refinement else None
+        if fine is None and self.check_refinement:
+            fine = self.check(result.x, batch, refined=True)
         numeric = jax.tree.map(np.asarray, batch)
         cost = coarse.energy if cost_of_rollout else np.asarray(result.cost)
         if fine is None:

@@ -1,0 +1,113 @@
+"""Where an iteration of the batched interior point spends its time, phase by phase, on the study's gait
+problem (M1-M4 repeated to a batch of B): the exact derivatives (one forward-over-reverse pass split by
+shooting segment), the Newton system (condensed Hessian, null-space QR, reduced Hessian and its
+Cholesky factorisation, one solve), one trial point of the line search (a rollout), and the whole
+iteration as the solver runs it (its line search included). Each phase is its own jit-compiled, vmapped
+program timed at the same iterate (the state after ``--warm-iterations`` iterations from the heuristic
+start), so the sum of the phases need not equal the iteration: XLA fuses across them in the solver.
+
+    python benchmarks/ip_phases.py --batch 4 16
+    python benchmarks/ip_phases.py --batch 256 1024 --repeats 5     # on a GPU
+"""
+
+import argparse
+import functools
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from _results import median_seconds, save_results
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=int, nargs="+", default=[4, 16], help="batch sizes B")
+    parser.add_argument("--spans", type=int, default=48, help="knot spans (the study's 48)")
+    parser.add_argument("--substeps", type=int, default=4)
+    parser.add_argument("--warm-iterations", type=int, default=15,
+                        help="iterations from the heuristic start before timing (a representative iterate)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--float32", action="store_true", help="single precision (default float64)")
+    parser.add_argument("--name", default="ip_phases", help="results file stem")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = parser.parse_args()
+    jax.config.update("jax_enable_x64", not args.float32)
+
+    from biped_jax.gait import problem as gait_problem
+    from biped_jax.gait.solver import GaitSolver, stack_tree
+    from biped_jax.optim import exact_derivatives
+    from biped_jax.optim import interior_point as ip
+    from biped_jax.studies import paper as study
+
+    settings = gait_problem.GaitSettings(spans=args.spans, substeps=args.substeps)
+    solver = GaitSolver(settings)
+    models = study.paper_gait_models(study.PAPER_MODELS)
+    rows = []
+    for batch_size in args.batch:
+        picked = [models[b % len(models)] for b in range(batch_size)]
+        params = stack_tree(picked)
+        x0 = solver._initial_guess(params)
+        problem, structure = solver.prepared("energy", x0, params)
+        options = ip.InteriorPointOptions()
+        compiled = ip.compile_problem(problem, options)
+        _, h0, g0 = jax.eval_shape(problem.evaluate, x0[0], jax.tree.map(lambda a: a[0], params))
+        zeros = (jnp.zeros((batch_size,) + h0.shape), jnp.zeros((batch_size,) + g0.shape))
+        state = compiled.initial(x0, params, *zeros, options.mu_initial)
+        started = time.perf_counter()
+        state = jax.block_until_ready(compiled.block(structure, params, state,
+                                                     jnp.asarray(args.warm_iterations, jnp.int32)))
+        warm_seconds = time.perf_counter() - started
+        weight, y, z = state.scale_f, state.scale_h * state.y, state.scale_g * state.z
+
+        derivatives = jax.jit(jax.vmap(functools.partial(exact_derivatives.derivatives, problem),
+                                       in_axes=(0, 0, 0, 0, 0, None)))
+        evaluate = jax.jit(jax.vmap(problem.evaluate))
+
+        def newton_step(hessian, jac_h, jac_g, grad, h, g, s, z, mu):
+            sigma = z / s
+            condensed = hessian + jac_g.T @ (sigma[:, None] * jac_g)
+            solve, _ = ip.newton_solver(condensed, jac_h, jnp.zeros(()), jnp.zeros(()),
+                                        options.equality_regularisation)
+            return solve(-(grad + jac_g.T @ (sigma * (g + s) + mu / s - z)), h)
+
+        newton = jax.jit(jax.vmap(newton_step))
+        one_iteration = jax.jit(jax.vmap(functools.partial(ip._iterate, problem, options),
+                                         in_axes=(None, 0, 0)))
+        d = derivatives(state.x, params, weight, y, z, structure)
+        f, h, g, grad, jac_h, jac_g, hessian = d
+        newton_args = (hessian, state.scale_h[:, :, None] * jac_h, state.scale_g[:, :, None] * jac_g, grad,
+                       state.scale_h * h, state.scale_g * g, state.s, state.z, state.mu)
+        phases = {}
+        for label, function, call in (
+                ("derivatives", derivatives, (state.x, params, weight, y, z, structure)),
+                ("newton system", newton, newton_args),
+                ("one trial point", evaluate, (state.x, params)),
+                ("whole iteration", one_iteration, (structure, params, state))):
+            started = time.perf_counter()
+            jax.block_until_ready(function(*call))
+            compile_seconds = time.perf_counter() - started
+            seconds = median_seconds(function, call, args.repeats)
+            phases[label] = seconds
+            rows.append({"batch": batch_size, "phase": label, "seconds": seconds,
+                         "per_problem_ms": 1e3 * seconds / batch_size, "first_call_s": compile_seconds})
+        after = one_iteration(structure, params, state)
+        trials = float(np.mean(np.asarray(after.evaluations - state.evaluations)
+                               - exact_derivatives.directions(problem, structure) - 2))
+        rows.append({"batch": batch_size, "phase": "trial points per iteration (mean)", "count": trials,
+                     "warm_iterations_s": warm_seconds})
+        print(f"B = {batch_size}: n = {x0.shape[1]}, m_h = {h.shape[1]}, m_g = {g.shape[1]}, "
+              f"{args.warm_iterations} iterations to the timed iterate in {warm_seconds:.2f} s; "
+              f"{trials:.1f} trial points per iteration")
+        for label, seconds in phases.items():
+            share = seconds / phases["whole iteration"]
+            print(f"  {label:18s} {1e3 * seconds:10.2f} ms  ({1e3 * seconds / batch_size:8.3f} ms a problem, "
+                  f"{100 * share:5.1f} % of the iteration)")
+    save_results(args.name, {"spans": args.spans, "substeps": args.substeps,
+                             "warm_iterations": args.warm_iterations,
+                             "dtype": "float32" if args.float32 else "float64"}, rows, args.out)
+
+
+if __name__ == "__main__":
+    main()
