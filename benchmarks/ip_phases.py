@@ -1,7 +1,8 @@
 """Where an iteration of the batched interior point spends its time, phase by phase, on the study's gait
 problem (M1-M4 repeated to a batch of B): the exact derivatives (one forward-over-reverse pass split by
-shooting segment), the Newton system (condensed Hessian, null-space QR, reduced Hessian and its
-Cholesky factorisation, one solve), one trial point of the line search (a rollout), and the whole
+shooting segment, the inequality Jacobian in its segments' blocks), the Newton system (condensed
+Hessian, null-space QR, reduced Hessian and its Cholesky factorisation, one solve), one trial point
+of the line search (a rollout), and the whole
 iteration as the solver runs it (its line search included). Each phase is its own jit-compiled, vmapped
 program timed at the same iterate (the state after ``--warm-iterations`` iterations from the heuristic
 start), so the sum of the phases need not equal the iteration: XLA fuses across them in the solver.
@@ -37,7 +38,7 @@ def main():
 
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver, stack_tree
-    from biped_jax.optim import exact_derivatives
+    from biped_jax.optim import exact_derivatives, jacobian
     from biped_jax.optim import interior_point as ip
     from biped_jax.studies import paper as study
 
@@ -61,23 +62,23 @@ def main():
         warm_seconds = time.perf_counter() - started
         weight, y, z = state.scale_f, state.scale_h * state.y, state.scale_g * state.z
 
-        derivatives = jax.jit(jax.vmap(functools.partial(exact_derivatives.derivatives, problem),
+        derivatives = jax.jit(jax.vmap(functools.partial(exact_derivatives.derivatives, problem, blocks=True),
                                        in_axes=(0, 0, 0, 0, 0, None)))
         evaluate = jax.jit(jax.vmap(problem.evaluate))
 
         def newton_step(hessian, jac_h, jac_g, grad, h, g, s, z, mu):
             sigma = z / s
-            condensed = hessian + jac_g.T @ (sigma[:, None] * jac_g)
+            condensed = hessian + jacobian.gram(jac_g, sigma)
             solve, _ = ip.newton_solver(condensed, jac_h, jnp.zeros(()), jnp.zeros(()),
                                         options.equality_regularisation)
-            return solve(-(grad + jac_g.T @ (sigma * (g + s) + mu / s - z)), h)
+            return solve(-(grad + jacobian.rmatvec(jac_g, sigma * (g + s) + mu / s - z)), h)
 
         newton = jax.jit(jax.vmap(newton_step))
         one_iteration = jax.jit(jax.vmap(functools.partial(ip._iterate, problem, options),
                                          in_axes=(None, 0, 0)))
-        d = derivatives(state.x, params, weight, y, z, structure)
-        f, h, g, grad, jac_h, jac_g, hessian = d
-        newton_args = (hessian, state.scale_h[:, :, None] * jac_h, state.scale_g[:, :, None] * jac_g, grad,
+        f, h, g, grad, jac_h, jac_g, hessian = derivatives(state.x, params, weight, y, z, structure)
+        newton_args = (hessian, state.scale_h[:, :, None] * jac_h,
+                       jax.vmap(jacobian.row_scaled)(jac_g, state.scale_g), grad,
                        state.scale_h * h, state.scale_g * g, state.s, state.z, state.mu)
         phases = {}
         for label, function, call in (
@@ -95,11 +96,14 @@ def main():
         after = one_iteration(structure, params, state)
         trials = float(np.mean(np.asarray(after.evaluations - state.evaluations)
                                - exact_derivatives.directions(problem, structure) - 2))
+        # XLA's own figure for the iteration program (arguments, outputs, temporaries), per problem
+        memory = ip.program_memory(compiled, structure, x0, params, zeros) / ip.padded_batch(batch_size)
         rows.append({"batch": batch_size, "phase": "trial points per iteration (mean)", "count": trials,
-                     "warm_iterations_s": warm_seconds})
+                     "warm_iterations_s": warm_seconds, "program_memory_per_problem_MiB": memory / 2**20})
         print(f"B = {batch_size}: n = {x0.shape[1]}, m_h = {h.shape[1]}, m_g = {g.shape[1]}, "
               f"{args.warm_iterations} iterations to the timed iterate in {warm_seconds:.2f} s; "
-              f"{trials:.1f} trial points per iteration")
+              f"{trials:.1f} trial points per iteration; the iteration program needs "
+              f"{memory / 2**20:.1f} MiB a problem")
         for label, seconds in phases.items():
             share = seconds / phases["whole iteration"]
             print(f"  {label:18s} {1e3 * seconds:10.2f} ms  ({1e3 * seconds / batch_size:8.3f} ms a problem, "

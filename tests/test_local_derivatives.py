@@ -9,6 +9,7 @@ import pytest
 
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import segmented
+from biped_jax.optim import jacobian
 from biped_jax.optim import local_derivatives as ld
 
 #: Multiply shot in 4 segments of one knot span.
@@ -30,6 +31,19 @@ def _split(solver, model, x, kind):
     return problem, point, segmented.local_problem(solver.biped, solver.settings, kind)
 
 
+def _the_blocks_products_equal_the_dense_ones(blocks, dense, rng):
+    """Every product the interior point takes of the inequality Jacobian, by blocks and dense."""
+    m, n = dense.shape
+    assert blocks.shape == (m, n)
+    v, w = rng.normal(size=n), rng.uniform(size=m)
+    scale = rng.uniform(0.5, 2.0, size=m)
+    np.testing.assert_allclose(jacobian.matvec(blocks, v), dense @ v, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(jacobian.rmatvec(blocks, w), dense.T @ w, rtol=1e-12, atol=1e-10)
+    np.testing.assert_allclose(jacobian.gram(blocks, w), dense.T @ (w[:, None] * dense), rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(jacobian.dense(jacobian.row_scaled(blocks, scale)), scale[:, None] * dense, rtol=1e-15)
+    np.testing.assert_allclose(jacobian.row_max_abs(blocks), np.max(np.abs(dense), axis=1), rtol=1e-15)
+
+
 def test_the_splits_derivatives_equal_central_differences_of_the_problem():
     solver, model, x = _space(SPACES["4 segments"])
     problem, point, local = _split(solver, model, x, "energy")
@@ -43,8 +57,10 @@ def test_the_splits_derivatives_equal_central_differences_of_the_problem():
     slopes = [(v[1:n + 1] - v[n + 1:]) / (2 * step) for v in values]      # (n, ...) per output
     rng = np.random.default_rng(5)
     y, z = rng.normal(size=h.shape), rng.uniform(size=g.shape)
-    split = jax.jit(ld.derivatives, static_argnums=0)
-    f_, h_, g_, grad, jac_h, jac_g, hessian = split(local, point, model, 0.7, y, z)
+    split = jax.jit(ld.derivatives, static_argnums=(0, 6))  # jac g in blocks, as the interior point takes it
+    f_, h_, g_, grad, jac_h, blocks, hessian = split(local, point, model, 0.7, y, z, True)
+    jac_g = np.asarray(jacobian.dense(blocks))
+    _the_blocks_products_equal_the_dense_ones(blocks, jac_g, rng)
     # the split's rows are the problem's
     assert float(f_) == pytest.approx(float(f), rel=1e-12)
     np.testing.assert_allclose(h_, h, rtol=1e-12, atol=1e-12)
@@ -53,6 +69,6 @@ def test_the_splits_derivatives_equal_central_differences_of_the_problem():
     np.testing.assert_allclose(jac_g, slopes[2].T, atol=1e-7 * np.max(np.abs(jac_g)))
     np.testing.assert_allclose(grad, 0.7 * slopes[0] + slopes[1] @ y + slopes[2] @ z, atol=1e-7 * np.max(np.abs(grad)))
     for i in range(n):  # the Hessian's columns: differences of the split's own gradient
-        plus = split(local, point + offsets[i], model, 0.7, y, z)[3]
-        minus = split(local, point - offsets[i], model, 0.7, y, z)[3]
+        plus = split(local, point + offsets[i], model, 0.7, y, z, True)[3]
+        minus = split(local, point - offsets[i], model, 0.7, y, z, True)[3]
         np.testing.assert_allclose(hessian[:, i], (plus - minus) / (2 * step), atol=1e-6 * np.max(np.abs(hessian)))

@@ -90,7 +90,8 @@ def probe_structure(problem: nlp.ConstrainedProblem, x, params, padding: int = s
                      hessian_pattern=jnp.asarray(hessian))
 
 
-def derivatives(problem: nlp.ConstrainedProblem, x, params, weight, y, z, structure: Structure):
+def derivatives(problem: nlp.ConstrainedProblem, x, params, weight, y, z, structure: Structure,
+                blocks: bool = False):
     """Values and exact derivatives at x (one problem; vmap for a batch).
 
     Args:
@@ -101,10 +102,11 @@ def derivatives(problem: nlp.ConstrainedProblem, x, params, weight, y, z, struct
 
     Returns (f, h, g, grad L (n,), jac h (m_h, n), jac g (m_g, n), hessian of L (n, n)). A problem with
     a ``local`` split takes it instead of the colouring
-    (:func:`biped_jax.optim.local_derivatives.derivatives`).
+    (:func:`biped_jax.optim.local_derivatives.derivatives`); with ``blocks`` its jac g comes as a
+    :class:`~biped_jax.optim.jacobian.SegmentJacobian` (the colouring's is always dense).
     """
     if problem.local is not None:
-        return local_derivatives.derivatives(problem.local, x, params, weight, y, z)
+        return local_derivatives.derivatives(problem.local, x, params, weight, y, z, blocks)
     def gradient(point):
         def lagrangian(point):
             f, h, g = problem.evaluate(point, params)

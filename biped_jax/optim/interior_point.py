@@ -11,7 +11,9 @@ Math. Prog. 106, 2006) and its filter line search:
 - every iteration takes one Newton step on the barrier problem's KKT conditions with the exact Hessian
   of the Lagrangian and the exact constraint Jacobians (:mod:`biped_jax.optim.exact_derivatives`: one
   forward-over-reverse pass, no finite differences), the slacks and inequality multipliers eliminated, so
-  that one dense (n + m_h) system remains per problem (a few hundred unknowns for the gait);
+  that one dense (n + m_h) system remains per problem (a few hundred unknowns for the gait); the
+  inequality Jacobian, where the derivatives give it in its shooting segments' blocks, enters that
+  system block by block (:mod:`biped_jax.optim.jacobian`), never as a dense (m_g, n) matrix;
 - inertia correction: that system, with a small regularisation -delta_c I of its equality block, has the
   right inertia exactly when the matrix W + J_g^T S^-1 Z J_g + delta_w I + J_h^T J_h / delta_c is
   positive definite, which one Cholesky factorisation tells; delta_w grows until it is (IPOPT's rule);
@@ -44,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.optim import exact_derivatives, nlp
+from biped_jax.optim import jacobian as jacobian_ops
 
 #: Per-problem outcome codes inside the compiled loop (``status`` strings outside).
 _RUNNING, _CONVERGED, _ACCEPTABLE, _STALLED, _LOCALLY_INFEASIBLE, _NOT_FINITE, _PADDING = range(7)
@@ -178,7 +181,7 @@ def initial_state(problem: nlp.ConstrainedProblem, x0, params, y0, z0, mu) -> St
 def _row_scales(jacobian, threshold):
     """IPOPT's gradient-based scaling: each row multiplied by min(1, threshold / its largest
     derivative), so that no scaled gradient exceeds the threshold (rows without one keep 1)."""
-    largest = jnp.max(jnp.abs(jacobian), axis=-1, initial=0.0)
+    largest = jacobian_ops.row_max_abs(jacobian)
     return jnp.where(largest > threshold, threshold / jnp.maximum(largest, 1e-300), 1.0)
 
 
@@ -191,7 +194,7 @@ def _first_iteration(options, st: State, f, h, g, grad_f, jac_h, jac_g, hessian_
     s = jnp.maximum(-scale_g * g, options.slack_push)
     z = jnp.where(st.z > 0, st.z * scale_f / scale_g, st.mu / s if options.mu_based_multipliers else 1.0)
     y = st.y * scale_f / scale_h
-    grad = scale_f * grad_f + (scale_h[:, None] * jac_h).T @ y + (scale_g[:, None] * jac_g).T @ z
+    grad = scale_f * grad_f + (scale_h[:, None] * jac_h).T @ y + jacobian_ops.rmatvec(jac_g, scale_g * z)
     theta = _theta(scale_h * h, scale_g * g, s)
     state = st._replace(s=s, y=y, z=z, scale_f=scale_f, scale_h=scale_h, scale_g=scale_g,
                         theta_min=1e-4 * jnp.maximum(1.0, theta), theta_max=1e4 * jnp.maximum(1.0, theta))
@@ -319,14 +322,14 @@ def _iterate(problem, options, structure, params, st: State) -> State:
     first = st.iteration == 0
     f, h_raw, g_raw, grad, jac_h, jac_g, hessian = exact_derivatives.derivatives(
         problem, st.x, params, jnp.where(first, 1.0, st.scale_f), jnp.where(first, 0.0, st.scale_h * st.y),
-        jnp.where(first, 0.0, st.scale_g * st.z), structure)
+        jnp.where(first, 0.0, st.scale_g * st.z), structure, blocks=True)
     started, grad_first, hessian_first = _first_iteration(options, st, f, h_raw, g_raw, grad, jac_h, jac_g, hessian)
     st = jax.tree.map(lambda a, b: jnp.where(first, a, b), started, st)
     grad, hessian = jnp.where(first, grad_first, grad), jnp.where(first, hessian_first, hessian)
     w, scale_h, scale_g = st.scale_f, st.scale_h, st.scale_g
     feasible = violation(h_raw, g_raw) <= options.feasibility
     h, g = scale_h * h_raw, scale_g * g_raw
-    jac_h, jac_g = scale_h[:, None] * jac_h, scale_g[:, None] * jac_g
+    jac_h, jac_g = scale_h[:, None] * jac_h, jacobian_ops.row_scaled(jac_g, scale_g)
     dual, primal, complementarity = _kkt_errors(grad, h, g, st.s, st.y, st.z, 0.0)
     error = jnp.maximum(jnp.maximum(dual, primal), complementarity)
     acceptable = jnp.where((error <= options.acceptable_tolerance) & feasible, st.acceptable + 1, 0)
@@ -346,7 +349,7 @@ def _iterate(problem, options, structure, params, st: State) -> State:
     # Newton step on the barrier KKT system, slacks and z eliminated
     s, z = st.s, st.z
     sigma = z / s
-    condensed = hessian + jac_g.T @ (sigma[:, None] * jac_g)
+    condensed = hessian + jacobian_ops.gram(jac_g, sigma)
     floor = jnp.where(st.failures > 0, jnp.maximum(st.delta, _DELTA_FIRST) * _GROW_FIRST, 0.0)
     newton, delta = newton_solver(condensed, jac_h, st.delta, floor, options.equality_regularisation)
     tau = jnp.maximum(_TAU_MIN, 1.0 - mu)
@@ -354,13 +357,14 @@ def _iterate(problem, options, structure, params, st: State) -> State:
     def step(residual_h, residual_g):
         """(dx, dy, ds, largest step) for constraint residuals (h, g + s) (the Newton step's, or a
         second-order correction's)."""
-        dx, dy = newton(-(grad + jac_g.T @ (sigma * residual_g + mu / s - z)), residual_h)
-        ds = -residual_g - jac_g @ dx
+        dx, dy = newton(-(grad + jacobian_ops.rmatvec(jac_g, sigma * residual_g + mu / s - z)), residual_h)
+        ds = -residual_g - jacobian_ops.matvec(jac_g, dx)
         return dx, dy, ds, _to_boundary(s, ds, tau)
 
     dx, dy, ds, alpha_max = step(h, g + s)
     theta, phi = _theta(h, g, s), _phi(w, f, s, mu)
-    slope = (grad - jac_h.T @ st.y - jac_g.T @ z) @ dx - mu * jnp.sum(ds / s)   # of phi along the step
+    # of phi along the step
+    slope = (grad - jac_h.T @ st.y - jacobian_ops.rmatvec(jac_g, z)) @ dx - mu * jnp.sum(ds / s)
     descent = -jnp.minimum(slope, -1e-300)
     alpha_min = _GAMMA_ALPHA * jnp.where(
         slope < 0, jnp.minimum(_GAMMA_THETA, jnp.minimum(_GAMMA_PHI * theta / descent,
@@ -373,8 +377,8 @@ def _iterate(problem, options, structure, params, st: State) -> State:
     # (the linearised constraints solved in the same metric, the objective left out) halved until theta
     # falls (a short stand-in for IPOPT's feasibility restoration phase: the point it leaves joins the
     # filter, so that the iteration cannot come back to it).
-    dx_r, dy_r = newton(-(jac_g.T @ (sigma * (g + s))), h)
-    ds_r = -(g + s) - jac_g @ dx_r
+    dx_r, dy_r = newton(-jacobian_ops.rmatvec(jac_g, sigma * (g + s)), h)
+    ds_r = -(g + s) - jacobian_ops.matvec(jac_g, dx_r)
     alpha_r0 = _to_boundary(s, ds_r, tau)
 
     def trial_body(carry):

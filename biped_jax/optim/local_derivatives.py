@@ -24,6 +24,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from biped_jax.optim import jacobian as jacobian_blocks
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class LocalProblem:
@@ -79,10 +81,12 @@ def _second_order(function, point, directions):
     return jax.tree.map(lambda a: a[0], primal), tangent
 
 
-def derivatives(local: LocalProblem, x, params, weight, y, z):
+def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = False):
     """Values and exact derivatives at x (one problem), as
     :func:`biped_jax.optim.exact_derivatives.derivatives`: (f, h, g, grad L (n,), jac h (m_h, n),
-    jac g (m_g, n), hessian of L (n, n)) for L = w f + y . h + z . g with f = r . r."""
+    jac g (m_g, n), hessian of L (n, n)) for L = w f + y . h + z . g with f = r . r. ``blocks``: jac g
+    as a :class:`~biped_jax.optim.jacobian.SegmentJacobian` (its segments' blocks, not an (m_g, n)
+    array)."""
     n = x.shape[0]
     segments, width = local.segment_columns.shape
     padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
@@ -122,18 +126,11 @@ def derivatives(local: LocalProblem, x, params, weight, y, z):
                .at[boundary[:, None], boundary[None, :]].add(hess_e))[:n, :n]
     hessian = 0.5 * (hessian + hessian.T)
 
-    def jacobian(per_segment, at_boundary, order, rows_per_segment):
-        # per_segment (S, l, rows): d row / d local column; at_boundary (p, rows_b). Each split row goes
-        # straight to its row of the problem (rows no one owns to an index past the end: dropped)
-        split_rows = segments * rows_per_segment + at_boundary.shape[1]
-        target = np.full(split_rows, order.shape[0], dtype=np.int32)
-        target[order] = np.arange(order.shape[0])
-        into = jnp.zeros((order.shape[0], n + 1), x.dtype)
-        into = into.at[target[:segments * rows_per_segment].reshape(segments, rows_per_segment)[:, :, None],
-                       columns[:, None, :]].add(jnp.swapaxes(per_segment, 1, 2), mode="drop")
-        into = into.at[target[segments * rows_per_segment:][:, None], boundary[None, :]].add(at_boundary.T,
-                                                                                             mode="drop")
-        return into[:, :n]
+    def jacobian(per_segment, at_boundary, order):
+        # per_segment (S, l, rows): d row / d local column; at_boundary (p, rows_b)
+        return jacobian_blocks.SegmentJacobian(
+            segments=jnp.swapaxes(per_segment, 1, 2), boundary=at_boundary.T, columns=columns,
+            boundary_columns=jnp.asarray(boundary), order=jnp.asarray(order), size=n)
 
     h = jnp.concatenate([rows_k[1].ravel(), rows_e[1]])[local.order_h]
     g = jnp.concatenate([rows_k[2].ravel(), rows_e[2]])[local.order_g]
@@ -143,5 +140,6 @@ def derivatives(local: LocalProblem, x, params, weight, y, z):
     else:
         f = x[local.linear_objective] + beside * (r @ r)
         grad = grad.at[local.linear_objective].add(weight)
-    return (f, h, g, grad, jacobian(jh_k, jh_e, local.order_h, b), jacobian(jg_k, jg_e, local.order_g, c),
-            hessian)
+    jac_g = jacobian(jg_k, jg_e, local.order_g)
+    return (f, h, g, grad, jacobian_blocks.dense(jacobian(jh_k, jh_e, local.order_h)),
+            jac_g if blocks else jacobian_blocks.dense(jac_g), hessian)
