@@ -5,8 +5,8 @@ the smallest feasible power limits) and writes tables (markdown), figures (PNG) 
 into DIR; ``biped-jax solve`` does the same for one problem of the user's own. ``biped-jax kelly --out
 DIR`` solves Kelly's five-link biped benchmark with the same optimiser and writes ``kelly.json``.
 ``biped-jax donald`` walks DONALD in MJX, ``biped-jax humanoid`` replays the optimal gait on the 16-DoF
-humanoid under contact, ``biped-jax codesign`` co-designs gear ratios, windings and masses with the
-gait. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists the
+humanoid under contact, ``biped-jax codesign`` co-optimises gear ratios and the link masses' split
+with the gait and compares windings and total masses. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists the
 robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 """
 
@@ -150,8 +150,8 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("--gaits", type=_input_folder, default=None,
                         help="folder with results.json from `biped-jax reproduce` (default: solve the model here)")
     _space_arguments(replay, " when solving here")
-    design = subcommands.add_parser("codesign", help="co-design studies: gear ratios, windings and masses with "
-                                 "the gait (figures, JSON; tens of minutes)")
+    design = subcommands.add_parser("codesign", help="co-design studies: gear ratios and mass split optimised with "
+                                 "the gait, windings and masses compared (figures, JSON; tens of minutes)")
     _out_argument(design)
     _space_arguments(design)
     design.add_argument("--iterations", type=_integer("iterations", 1, 1000), default=5,

@@ -264,6 +264,11 @@ def _api_rows():
          "iterations must be an integer"),
         ("co-design: inverted ratio bounds", lambda: codesign.co_optimise(None, [reference], 0.5, 20.0,
                                                                           ratio_bounds=(190, 14)), "ratio_bounds"),
+        ("co-design: a mass split bound past 1", lambda: codesign.co_optimise(
+            None, [reference], 0.5, 20.0, mass_split_bounds=((0.2, 0.25), (1.5, 0.75))),
+         "high < 1 (fractions), got ((0.2, 0.25), (1.5"),
+        ("co-design: one mass split bound", lambda: codesign.co_optimise(
+            None, [reference], 0.5, 20.0, mass_split_bounds=(0.2, 0.5)), "two values each"),
         ("drives: negative supply", lambda: drive_model.catalogue_drives("RE25-42V", "GP32A-66", -1.0),
          "supply_voltage"),
         ("drives: ragged workspace", lambda: selection.JointWorkspace(np.linspace(0, 1, 5), np.zeros((4, 4)),

@@ -135,17 +135,80 @@ def test_a_batch_of_designs_converges_and_identical_designs_agree(design_solver,
     assert solutions[1].cost != pytest.approx(paper_solutions[1].cost, rel=0.05)
 
 
+SPLIT_STEP = 0.004  # central difference in the mass split's fractions
+
+
+def test_the_mass_split_keeps_the_total_and_gives_the_design_back_at_its_own_split():
+    reference = codesign.catalogue_design()
+    own = np.asarray(codesign.mass_split(reference))
+    np.testing.assert_allclose(own, [0.37354, 0.42008], atol=1e-5)  # Table 2 less the reference drives
+    np.testing.assert_allclose(codesign.with_mass_split(reference, own).structure_mass, reference.structure_mass,
+                               rtol=1e-14)
+    moved = codesign.with_mass_split(reference, jnp.array([0.25, 0.6]))
+    assert float(moved.total_mass) == pytest.approx(float(reference.total_mass), rel=1e-14)
+    np.testing.assert_allclose(codesign.mass_split(moved), [0.25, 0.6], rtol=1e-14)
+    mass = np.asarray(moved.structure_mass)
+    assert mass[1] == mass[3] and mass[2] == mass[4]  # both legs alike
+
+
+def test_the_projected_step_keeps_every_design_within_its_bounds():
+    """A huge gradient either way: with a small rate each variable moves by its rate (log N by the rate,
+    the split by SPLIT_STEP_SCALE times it); with a large one it stops on its bound; a variable with
+    low = high (a design's own split, held) never moves."""
+    import optax
+    theta = jnp.asarray(np.stack([codesign.design_variables(codesign.catalogue_design())] * 2))
+    low = np.concatenate([np.full((2, 4), np.log(14.0)), [[0.2, 0.25], theta[1, 4:]]], axis=1)
+    high = np.concatenate([np.full((2, 4), np.log(190.0)), [[0.5, 0.75], theta[1, 4:]]], axis=1)
+    adam = optax.inject_hyperparams(optax.adam)(learning_rate=0.25)
+    rates = jnp.array([1.0] * 4 + [codesign.SPLIT_STEP_SCALE] * 2)
+    for rate in (0.25, 4.0):
+        state = jax.vmap(adam.init)(theta)
+        state.hyperparams["learning_rate"] = jnp.full(2, rate)
+        for sign in (1.0, -1.0):
+            trial, _ = codesign._projected_step(adam, jnp.full((2, 6), 1e6 * sign), state, theta, rates,
+                                                jnp.asarray(low), jnp.asarray(high))
+            trial = np.asarray(trial)
+            assert np.all(trial >= low) and np.all(trial <= high)
+            np.testing.assert_array_equal(trial[1, 4:], theta[1, 4:])
+            if rate < 1:  # inside the bounds: Adam's first step is the rate against the gradient's sign
+                np.testing.assert_allclose(np.asarray(theta)[0] - trial[0], sign * rate * np.asarray(rates), rtol=1e-6)
+            else:  # on the bound the gradient points away from
+                np.testing.assert_array_equal(trial[0], low[0] if sign > 0 else high[0])
+
+
+@pytest.fixture(scope="module")
+def split_batch(design_solver, ratio_batch, paper_solutions):
+    """The centre design of ``ratio_batch`` at leg_fraction -+ d and thigh_share -+ d."""
+    centre = ratio_batch[0][1]
+    own = np.asarray(codesign.mass_split(centre))
+    offsets = SPLIT_STEP * np.array([[-1, 0], [1, 0], [0, -1], [0, 1]])
+    designs = [codesign.with_mass_split(centre, jnp.asarray(own + d)) for d in offsets]
+    x0 = np.tile(paper_solutions[1].x, (4, 1))
+    return designs, codesign.solve_designs(design_solver, designs, SPEED, POWER_LIMIT, x0=x0)
+
+
 @pytest.mark.slow
-def test_gradient_of_the_optimal_joule_energy_matches_re_solved_optima(design_solver, ratio_batch):
-    """Envelope-theorem gradient d J*/d log N (all four joints together) at the centre design, with
-    the interior point's multipliers, against central differences of the optima re-solved at log N +- d."""
+def test_gradient_of_the_optimal_joule_energy_matches_re_solved_optima(design_solver, ratio_batch, split_batch):
+    """Envelope-theorem gradient of J* at the centre design, with the interior point's multipliers,
+    against central differences of the optima re-solved at log N +- d (all four joints together) and
+    at the mass split's two fractions +- d."""
     designs, log_ratio, solutions = ratio_batch
-    gradient = codesign.ratio_gradient(design_solver)
-    per_joint = gradient(codesign.stack(designs), np.tile(log_ratio[:, None], (1, 4)), SPEED, POWER_LIMIT,
-                         0.2, solutions)
+    theta = np.stack([codesign.design_variables(d) for d in designs])
+    gradient = codesign.design_gradient(design_solver)(codesign.stack(designs), theta, SPEED, POWER_LIMIT,
+                                                       0.2, solutions)
     finite_difference = (solutions[2].cost - solutions[0].cost) / (2 * LOG_STEP)
-    assert per_joint[1].sum() == pytest.approx(finite_difference, rel=2e-3)
-    np.testing.assert_allclose(per_joint[3], per_joint[1], rtol=1e-12)
+    assert gradient[1, :4].sum() == pytest.approx(finite_difference, rel=2e-3)
+    np.testing.assert_allclose(gradient[3], gradient[1], rtol=1e-12)
+    _, split_solutions = split_batch
+    assert [s.status for s in split_solutions] == [nlp.CONVERGED] * 4
+    for variable in (0, 1):  # leg_fraction, thigh_share
+        minus, plus = split_solutions[2 * variable], split_solutions[2 * variable + 1]
+        finite_difference = (plus.cost - minus.cost) / (2 * SPLIT_STEP)
+        assert gradient[1, 4 + variable] == pytest.approx(finite_difference, rel=5e-3), variable
+    # the ratio-only gradient is the same program's first four columns
+    per_joint = codesign.ratio_gradient(design_solver)(codesign.stack(designs), np.tile(log_ratio[:, None], (1, 4)),
+                                                        SPEED, POWER_LIMIT, 0.2, solutions)
+    np.testing.assert_allclose(per_joint, gradient[:, :4], rtol=1e-12)
 
 
 @pytest.mark.slow
@@ -167,6 +230,17 @@ def test_co_optimisation_lowers_the_joule_energy_and_stops_when_every_design_is_
     moved = np.array(path.ratios[1]) != np.array(path.ratios[0])
     assert np.all(np.array(path.ratios[1])[moved] > np.array(path.ratios[0])[moved])
     assert [s.cost for s in path.solutions] == list(after)
+    # with the mass split free too: a design whose gait did not converge is masked (it keeps its point)
+    # and never moves the others, which take the same step as in a batch without it
+    split = [codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=1, max_step=0.1,
+                                  solutions=given, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS)
+             for given in (solutions, [dataclasses.replace(solutions[0], status=nlp.ITERATION_LIMIT)] + solutions[1:])]
+    free, masked = split
+    assert masked.mass_splits[1][0] == masked.mass_splits[0][0] and masked.ratios[1][0] == masked.ratios[0][0]
+    np.testing.assert_allclose(np.array(masked.mass_splits[1])[1:], np.array(free.mass_splits[1])[1:], rtol=1e-12)
+    np.testing.assert_allclose(np.array(masked.joule[1])[1:], np.array(free.joule[1])[1:], rtol=1e-10)
+    assert np.all(np.array(free.joule[1]) <= np.array(free.joule[0]))
+    assert np.any(np.array(free.mass_splits[1]) != np.array(free.mass_splits[0]))
     frozen = codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=3,
                                   max_step=0.1, min_step=1.0, solutions=solutions, progress=messages.append)
     assert len(frozen.ratios) == 1 and "stopped after 0 iterations" in messages[-1]

@@ -180,6 +180,40 @@ def with_ratio(design: DriveDesign, log_ratio: jax.Array,
                                gear_inertia=interpolate(2), gear_mass=interpolate(3))
 
 
+#: The mass split's variables: the legs' share of the structure mass (both legs, drives excluded) and
+#: the thighs' share of the legs' (both legs alike: the gait is periodic with the legs swapped).
+MASS_SPLIT_NAMES = ("leg_fraction", "thigh_share")
+#: Bounds of the mass split, ours: a design range around the paper's biped (Table 2 less the reference
+#: drives: legs 0.374 of the 12 kg robot's 10.72 kg of structure, thighs 0.420 of the legs; 0.379 and
+#: 0.449 at 18 kg) wide enough to see where the gait wants the mass, every link keeping at least a
+#: quarter of its Table 2 mass (0.27 kg a thigh at 12 kg) so that a leg stays a structure that carries
+#: its drive.
+MASS_SPLIT_BOUNDS = ((0.2, 0.25), (0.5, 0.75))
+
+
+def mass_split(design: DriveDesign) -> jax.Array:
+    """(leg_fraction, thigh_share) of ``design``'s structure (:data:`MASS_SPLIT_NAMES`), (2,); legs
+    averaged over both sides."""
+    torso, thigh1, shank1, thigh2, shank2 = (design.structure_mass[..., i] for i in range(5))
+    legs = thigh1 + shank1 + thigh2 + shank2
+    return jnp.stack([legs / (torso + legs), (thigh1 + thigh2) / legs], axis=-1)
+
+
+def with_mass_split(design: DriveDesign, split: jax.Array) -> DriveDesign:
+    """``design`` with its structure mass (the same total) split as ``split`` = (leg_fraction,
+    thigh_share) (2,), traceable: the torso scaled to (1 - leg_fraction) of the total, the thighs
+    together to leg_fraction thigh_share, the shanks to leg_fraction (1 - thigh_share), each link of a
+    pair by the same factor (so the design's own split gives the design back exactly). Inertias follow
+    the masses (uniform density, the links keep their shapes: :class:`~biped_jax.robots.design.Design`)."""
+    mass = design.structure_mass
+    own = mass_split(design)
+    torso = (1.0 - split[0]) / (1.0 - own[0])
+    thighs = split[0] * split[1] / (own[0] * own[1])
+    shanks = split[0] * (1.0 - split[1]) / (own[0] * (1.0 - own[1]))
+    factors = jnp.stack([torso, thighs, shanks, thighs, shanks])  # the total kept: 1 - f + f t + f (1 - t) = 1
+    return dataclasses.replace(design, structure_mass=mass * factors)
+
+
 def nearest_gearhead(ratio: float, catalogue: drive_model.Catalogue | None = None) -> str:
     """The catalogue gearhead whose ratio is nearest to ``ratio`` in log scale; ValueError for a ratio
     more than a factor 2 outside the catalogue's range (no gearhead is near it)."""

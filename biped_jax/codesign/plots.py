@@ -91,9 +91,11 @@ def plot_pareto(study: dict, path: Path) -> None:
 
 
 def plot_optimisation(study: dict, path: Path) -> None:
-    """Joule energy of every start over the iterations, and the ratios of the best design."""
+    """Joule energy of every start over the iterations, the ratios of the best design, and every
+    design's path in (knee ratio, legs' share of the mass)."""
     plt = outputs.pyplot()
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    splits = study["path"].get("mass_splits")
+    figure, axes = plt.subplots(1, 3 if splits else 2, figsize=(16 if splits else 11, 4.2), constrained_layout=True)
     joule = np.array(study["path"]["joule_J"], dtype=float)  # (iterations + 1, B)
     status = np.array(study["path"]["status"])
     masked = np.where(status == CONVERGED, joule, np.nan)
@@ -113,5 +115,14 @@ def plot_optimisation(study: dict, path: Path) -> None:
     axes[1].set_xlabel("co-design iteration")
     axes[1].set_ylabel("gear ratio N")
     axes[1].grid(alpha=0.3, which="both")
+    if splits:
+        legs = np.array(splits)[:, :, 0]  # (iterations + 1, B)
+        for b in range(legs.shape[1]):
+            axes[2].semilogx(ratios[:, b, 1], legs[:, b], "-", lw=1, alpha=0.7)
+            axes[2].plot(ratios[-1, b, 1], legs[-1, b], "k.", ms=5)
+        axes[2].set_xlabel("knee gear ratio N (K1)")
+        axes[2].set_ylabel("legs' share of the structure mass")
+        axes[2].set_title("every design's path (dot: where it ended)")
+        axes[2].grid(alpha=0.3, which="both")
     outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)

@@ -27,17 +27,21 @@ import optax
 
 from biped_jax import checks
 from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one co-design namespace
+    MASS_SPLIT_BOUNDS,
+    MASS_SPLIT_NAMES,
     DriveDesign,
     REFERENCE_GEARHEAD,
     REFERENCE_MOTOR,
     catalogue_design,
     design_gait_model,
     joint_drives,
+    mass_split,
     nearest_gearhead,
     reflected_inertia,
     robot_design,
     stack,
     unstack,
+    with_mass_split,
     with_ratio,
 )
 from biped_jax.drives import model as drive_model
@@ -47,15 +51,21 @@ from biped_jax.optim import nlp
 
 __all__ = [
     "CoOptimisation",
+    "DESIGN_VARIABLES",
+    "MASS_SPLIT_BOUNDS",
+    "MASS_SPLIT_NAMES",
     "DriveDesign",
     "REFERENCE_GEARHEAD",
     "REFERENCE_MOTOR",
     "SOLVER_OPTIONS",
     "catalogue_design",
     "co_optimise",
+    "design_gradient",
     "design_record",
+    "design_variables",
     "design_gait_model",
     "joint_drives",
+    "mass_split",
     "nearest_gearhead",
     "ratio_gradient",
     "reflected_inertia",
@@ -63,7 +73,9 @@ __all__ = [
     "solve_designs",
     "stack",
     "unstack",
+    "with_mass_split",
     "with_ratio",
+    "with_variables",
 ]
 
 #: The co-design's gait solver: the batched interior point warm-started from a solved gait (a
@@ -148,58 +160,112 @@ def design_record(design: DriveDesign, solution) -> dict:
 
 # ----------------------------------------------------------------------------- gradients and co-optimisation
 
-def ratio_gradient(solver) -> Callable:
-    """d J*/d log N per joint for a batch of converged solutions, by the envelope theorem.
+#: The co-design's variables per design, in order: log N per joint (H1, K1, H2, K2), then the mass
+#: split (:data:`MASS_SPLIT_NAMES`: fractions).
+DESIGN_VARIABLES = ("log_ratio_H1", "log_ratio_K1", "log_ratio_H2", "log_ratio_K2") + MASS_SPLIT_NAMES
+#: A step of the mass split per unit step of log N (Adam moves every variable by about its learning
+#: rate): a step of 0.25 in log N (28 % in N) goes with 0.05 of the structure's mass moved.
+SPLIT_STEP_SCALE = 0.2
 
-    Returns ``gradient(designs, log_ratio, speed, power_limit, step_length, solutions) -> (B, 4)``
-    (designs stacked with :func:`stack`; gear data follow the ratio as in :func:`with_ratio`).
+
+def design_variables(design: DriveDesign) -> np.ndarray:
+    """The variables (:data:`DESIGN_VARIABLES`) of one design, (6,)."""
+    return np.concatenate([np.log(np.asarray(design.ratio, dtype=float)), np.asarray(mass_split(design), dtype=float)])
+
+
+def with_variables(design: DriveDesign, theta, catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
+    """``design`` at the variables ``theta`` (6,) (traceable): the gear ratios with their gear data
+    (:func:`with_ratio`) and the structure mass split (:func:`with_mass_split`)."""
+    return with_mass_split(with_ratio(design, theta[:4], catalogue), theta[4:])
+
+
+def design_gradient(solver) -> Callable:
+    """d J*/d theta for a batch of converged solutions, by the envelope theorem, theta the variables
+    of :data:`DESIGN_VARIABLES` (log N per joint, the mass split).
+
+    Returns ``gradient(designs, theta, speed, power_limit, step_length, solutions) -> (B, 6)`` (designs
+    stacked with :func:`stack`, theta (B, 6); one compiled program for every batch of one size).
     """
     catalogue = drive_model.load_catalogue()
 
-    def parameters_to_model(theta):
-        design, log_ratio, speed, power_limit, step_length = theta
-        return design_gait_model(with_ratio(design, log_ratio, catalogue), speed, power_limit, step_length)
+    def parameters_to_model(parameters):
+        design, theta, speed, power_limit, step_length = parameters
+        return design_gait_model(with_variables(design, theta, catalogue), speed, power_limit, step_length)
 
     envelope = nlp.optimal_value_gradient(solver.problem, parameters_to_model)
 
-    def gradient(designs, log_ratio, speed, power_limit, step_length, solutions):
-        size = log_ratio.shape[0]
+    def gradient(designs, theta, speed, power_limit, step_length, solutions):
+        size = theta.shape[0]
         per = lambda value: jnp.broadcast_to(jnp.asarray(value, float), (size,))  # noqa: E731
-        theta = (designs, jnp.asarray(log_ratio), per(speed), per(power_limit), per(step_length))
+        parameters = (designs, jnp.asarray(theta, float), per(speed), per(power_limit), per(step_length))
         x = jnp.stack([jnp.asarray(s.x) for s in solutions])
         lam_eq = jnp.stack([jnp.asarray(s.multipliers_eq) for s in solutions])
         lam_in = jnp.stack([jnp.asarray(s.multipliers_in) for s in solutions])
-        return np.asarray(envelope(theta, x, lam_eq, lam_in)[1])
+        return np.asarray(envelope(parameters, x, lam_eq, lam_in)[1])
+    return gradient
+
+
+def ratio_gradient(solver) -> Callable:
+    """d J*/d log N per joint for a batch of converged solutions, by the envelope theorem (the first
+    four columns of :func:`design_gradient`, at each design's own mass split).
+
+    Returns ``gradient(designs, log_ratio, speed, power_limit, step_length, solutions) -> (B, 4)``.
+    """
+    full = design_gradient(solver)
+
+    def gradient(designs, log_ratio, speed, power_limit, step_length, solutions):
+        split = np.asarray(jax.vmap(mass_split)(designs))
+        return full(designs, np.concatenate([np.asarray(log_ratio, float), split], axis=1), speed, power_limit,
+                    step_length, solutions)[:, :4]
     return gradient
 
 
 @dataclasses.dataclass
 class CoOptimisation:
-    """The path of :func:`co_optimise`: per iteration the ratios (B, 4), Joule energies (B,), statuses,
-    and the final designs and gaits."""
+    """The path of :func:`co_optimise`: per iteration the ratios (B, 4), the mass splits (B, 2:
+    leg_fraction, thigh_share), Joule energies (B,), statuses, and the final designs and gaits."""
 
     ratios: list
     joule: list
     status: list
     designs: list
     solutions: list
+    mass_splits: list = dataclasses.field(default_factory=list)
+
+
+def _check_bounds(name: str, bounds, unit: str, within=(0.0, np.inf)) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) as arrays; ValueError naming ``bounds`` unless low < high, inside ``within``."""
+    try:
+        low, high = (np.asarray(b, dtype=float) for b in bounds)
+    except (TypeError, ValueError):
+        low = high = np.asarray(np.nan)
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(within[0] < low)
+            and np.all(low < high) and np.all(high < within[1])):
+        raise ValueError(f"{name} must be (low, high) with {within[0]:g} < low < high < {within[1]:g} ({unit}), "
+                         f"got {bounds!r}")
+    return low, high
 
 
 def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                 iterations: int = 6, max_step: float = 0.25, ratio_bounds=(14.0, 190.0),
                 min_step: float = 0.02, solutions: list | None = None,
-                progress: Callable[[str], None] | None = None) -> CoOptimisation:
-    """Gear ratios per joint co-optimised with the gait, all designs of the batch at once.
+                progress: Callable[[str], None] | None = None, mass_split_bounds=None) -> CoOptimisation:
+    """Gear ratios per joint (and, with ``mass_split_bounds``, the structure's mass split) co-optimised
+    with the gait, all designs of the batch at once.
 
-    optax's Adam on log N, one optimiser state per design (vmapped), its learning rate the design's
-    step (at first ``max_step``: Adam's first step moves each joint by about the step, later ones by
-    less where the gradient's sign wavers), the update projected onto ``ratio_bounds``
+    The variables (:data:`DESIGN_VARIABLES`): log N per joint and the mass split (the legs' share of
+    the structure mass, the thighs' share of the legs'; the total kept), the latter only with
+    ``mass_split_bounds`` ((low, high) per split variable, e.g. :data:`MASS_SPLIT_BOUNDS`; else each
+    design keeps its own split). optax's Adam, one optimiser state per design (vmapped), its learning
+    rate the design's step (at first ``max_step`` in log N, :data:`SPLIT_STEP_SCALE` times that in
+    the split's fractions: Adam's first step moves each variable by about its rate, later ones by less
+    where the gradient's sign wavers), the update projected onto the bounds
     (``optax.projections.projection_box``); the gradient from the envelope theorem at each re-solved
-    (warm-started) optimum. A step that raises the Joule energy or loses feasibility is undone (the
-    design keeps its point and optimiser state) and the design's step halved. A design is frozen once
-    its step falls below ``min_step`` (log N) or its gait does not converge; the loop ends early when
-    every design is frozen (the batch keeps its shape, so a frozen design is still solved while others
-    move, but its result is not taken).
+    (warm-started) optimum (:func:`design_gradient`). A step that raises the Joule energy or loses
+    feasibility is undone (the design keeps its point and optimiser state) and the design's step
+    halved. A design is frozen once its step falls below ``min_step`` (log N) or its gait does not
+    converge; the loop ends early when every design is frozen (the batch keeps its shape, so a frozen
+    design is still solved while others move, but its result is not taken).
     Gear data follow the ratio smoothly (:func:`with_ratio`); snap the result to the catalogue with
     :func:`nearest_gearhead` and re-solve to verify. ``solutions``: the designs' gaits if already solved
     (e.g. by :func:`solve_designs`), else they are solved first.
@@ -210,16 +276,28 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     checks.number_in("min_step", min_step, 0.0, 10.0, "(log N)")
     if not (len(ratio_bounds) == 2 and 0 < ratio_bounds[0] < ratio_bounds[1]):
         raise ValueError(f"ratio_bounds must be (low, high) with 0 < low < high, got {ratio_bounds!r}")
+    theta = np.stack([design_variables(d) for d in designs])
+    if mass_split_bounds is None:
+        split_low, split_high = theta[:, 4:], theta[:, 4:]  # each design keeps its own split
+    else:
+        split_low, split_high = _check_bounds("mass_split_bounds", mass_split_bounds, "fractions", (0.0, 1.0))
+        if split_low.shape != (2,):
+            raise ValueError(f"mass_split_bounds must give two values each (leg_fraction, thigh_share), got "
+                             f"{mass_split_bounds!r}")
     gait_problem.check_problem(*(per_design(label, value, len(designs)) for label, value in
                          (("speed", speed), ("power_limit", power_limit), ("step_length", step_length))))
     say = progress or (lambda message: None)
-    gradient = ratio_gradient(solver)
+    gradient = design_gradient(solver)
     catalogue = drive_model.load_catalogue()
     base = stack(designs)
-    theta = np.log(np.asarray(base.ratio, dtype=float))
-    low, high = np.log(ratio_bounds[0]), np.log(ratio_bounds[1])
+    low = np.concatenate([np.full((len(designs), 4), np.log(ratio_bounds[0])),
+                          np.broadcast_to(split_low, (len(designs), 2))], axis=1)
+    high = np.concatenate([np.full((len(designs), 4), np.log(ratio_bounds[1])),
+                           np.broadcast_to(split_high, (len(designs), 2))], axis=1)
+    theta = np.clip(theta, low, high)
+    rates = np.array([1.0] * 4 + [SPLIT_STEP_SCALE] * 2)  # each variable's step per unit of the design's
     step = np.full(len(designs), max_step)
-    apply = jax.jit(jax.vmap(lambda d, t: with_ratio(d, t, catalogue)))
+    apply = jax.jit(jax.vmap(lambda d, t: with_variables(d, t, catalogue)))
     adam = optax.inject_hyperparams(optax.adam)(learning_rate=max_step)
     state = jax.vmap(adam.init)(jnp.asarray(theta))
     if solutions is None:
@@ -230,7 +308,8 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     path = CoOptimisation([], [], [], [], [])
 
     def record(theta_, solutions_):
-        path.ratios.append(np.exp(theta_).tolist())
+        path.ratios.append(np.exp(theta_[:, :4]).tolist())
+        path.mass_splits.append(theta_[:, 4:].tolist())
         path.joule.append([s.cost for s in solutions_])
         path.status.append([s.status for s in solutions_])
 
@@ -242,7 +321,8 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
             break
         grad = gradient(base, theta, speed, power_limit, step_length, solutions)
         state.hyperparams["learning_rate"] = jnp.asarray(step)
-        trial, trial_state = _projected_step(adam, jnp.asarray(grad), state, jnp.asarray(theta), low, high)
+        trial, trial_state = _projected_step(adam, jnp.asarray(grad), state, jnp.asarray(theta), jnp.asarray(rates),
+                                             jnp.asarray(low), jnp.asarray(high))
         trial = np.where(moving[:, None], np.asarray(trial), theta)
         x_warm = jnp.stack([jnp.asarray(s.x) for s in solutions])
         trial_solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(trial))), speed, power_limit,
@@ -269,7 +349,8 @@ def _rows_where(mask, new, old):
     return jax.tree.map(pick, new, old)
 
 
-def _projected_step(optimiser, grad, state, theta, low, high):
-    """Every design's optax update of ``theta`` (B, 4) with its own state, projected onto [low, high]."""
+def _projected_step(optimiser, grad, state, theta, rates, low, high):
+    """Every design's optax update of ``theta`` (B, V) with its own state, each variable's update times
+    its ``rates`` (V,), projected onto [low, high] ((B, V) each; low = high holds a variable)."""
     updates, state = jax.vmap(optimiser.update)(grad, state, theta)
-    return optax.projections.projection_box(optax.apply_updates(theta, updates), low, high), state
+    return optax.projections.projection_box(optax.apply_updates(theta, rates * updates), low, high), state

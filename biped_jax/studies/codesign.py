@@ -4,8 +4,8 @@ batched interior point for every batch), every solve warm-started from the paper
 (a) peak joint power and Joule energy per metre against total mass (8-24 kg) at 0.417 and 0.555 m/s,
     with fitted power-law exponents; (b) the highest feasible speed against the gear ratio for the 42 V
     winding; (c) Joule energy per metre against robot mass over catalogue ratios x windings and its
-    Pareto front; (d) gear ratios per joint co-optimised with the gait from 16 starts, snapped to the
-    catalogue and re-verified.
+    Pareto front; (d) gear ratios per joint and the structure's mass split co-optimised with the gait
+    from 16 starts, snapped to the catalogue and re-verified.
 """
 
 from __future__ import annotations
@@ -162,26 +162,36 @@ def pareto(solver: GaitSolver, x_start, say) -> dict:
 
 
 def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
-    """Study (d): gear ratios per joint for the 42 V winding at M2 (0.555 m/s, 20 W, 38 V) from 16
-    uniform starts (14:1 to 190:1), co-optimised with the gait, then snapped to the nearest catalogue
-    gearhead per joint and re-solved."""
+    """Study (d): gear ratios per joint and the structure's mass split (legs' share, thighs' share of
+    the legs, within :data:`~biped_jax.codesign.drive_design.MASS_SPLIT_BOUNDS`; the total kept) for the
+    42 V winding at M2 (0.555 m/s, 20 W, 38 V) from 16 uniform ratio starts (14:1 to 190:1, the paper's
+    split), co-optimised with the gait, then snapped to the nearest catalogue gearhead per joint (the
+    split kept) and re-solved."""
     catalogue = drive_model.load_catalogue()
     starts = [codesign.with_ratio(codesign.catalogue_design(), np.full(4, t), catalogue)
               for t in np.linspace(np.log(14.0), np.log(190.0), BATCH)]
     path = codesign.co_optimise(solver, starts, SPEEDS[1], POWER_LIMIT, x0=np.tile(x_start, (BATCH, 1)),
-                                iterations=iterations, progress=say)
+                                iterations=iterations, progress=say, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS)
     snapped_names = [tuple(codesign.nearest_gearhead(float(n), catalogue) for n in np.asarray(d.ratio))
                      for d in path.designs]
-    snapped = [codesign.catalogue_design("RE25-42V", names, catalogue=catalogue) for names in snapped_names]
+    snapped = [codesign.with_mass_split(codesign.catalogue_design("RE25-42V", names, catalogue=catalogue),
+                                        codesign.mass_split(d))
+               for names, d in zip(snapped_names, path.designs)]
     say("(d) re-solving the snapped catalogue designs")
     verified = codesign.solve_designs(solver, snapped, SPEEDS[1], POWER_LIMIT,
                                       x0=np.stack([s.x for s in path.solutions]), summary=say)
-    records = [{"gearheads": list(n), **codesign.design_record(d, s)}
+    split_record = lambda d: dict(zip(codesign.MASS_SPLIT_NAMES, np.asarray(codesign.mass_split(d)).tolist()))  # noqa: E731
+    records = [{"gearheads": list(n), "mass_split": split_record(d), **codesign.design_record(d, s)}
                for n, d, s in zip(snapped_names, snapped, verified)]
     ok = [i for i, r in enumerate(records) if r["status"] == nlp.CONVERGED]
     best = min(ok, key=lambda i: records[i]["joule_energy_J"]) if ok else None
-    return {"path": {"ratios": path.ratios, "joule_J": path.joule, "status": path.status},
-            "continuous": [{"ratio": np.asarray(d.ratio).tolist(), "status": s.status, "joule_energy_J": s.cost}
+    return {"variables": {"names": list(codesign.DESIGN_VARIABLES),
+                          "units": ["log of the gear ratio"] * 4 + ["fraction"] * 2,
+                          "mass_split_bounds": [list(b) for b in codesign.MASS_SPLIT_BOUNDS]},
+            "path": {"ratios": path.ratios, "mass_splits": path.mass_splits, "joule_J": path.joule,
+                     "status": path.status},
+            "continuous": [{"ratio": np.asarray(d.ratio).tolist(), "mass_split": split_record(d),
+                            "status": s.status, "joule_energy_J": s.cost}
                            for d, s in zip(path.designs, path.solutions)],
             "snapped": records, "best": best}
 
