@@ -6,8 +6,9 @@ into DIR; ``biped-jax solve`` does the same for one problem of the user's own. `
 DIR`` solves Kelly's five-link biped benchmark with the same optimiser and writes ``kelly.json``.
 ``biped-jax donald`` walks DONALD in MJX, ``biped-jax humanoid`` replays the optimal gait on the 16-DoF
 humanoid under contact, ``biped-jax codesign`` co-optimises gear ratios and the link masses' split
-with the gait and compares windings and total masses. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists the
-robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
+with the gait and compares windings and total masses. ``biped-jax step`` simulates one heuristic
+PD-controlled step, ``biped-jax models`` lists the robots and ``biped-jax view NAME`` opens one in
+MuJoCo's viewer.
 """
 
 from __future__ import annotations
