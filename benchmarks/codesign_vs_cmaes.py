@@ -17,8 +17,8 @@ Reported: each method's best energy against the solves spent, the solves each ne
 0.5 % of the better best, and at the gradient method's final design its gradient against central
 differences of re-solved optima (every variable +- its step, one batch).
 
-    python benchmarks/codesign_vs_cmaes.py                       # 8 knot spans, the quick space
-    python benchmarks/codesign_vs_cmaes.py --spans 16 --substeps 8 --generations 30
+    python benchmarks/codesign_vs_cmaes.py                       # the co-design studies' 16 knot spans
+    python benchmarks/codesign_vs_cmaes.py --generations 30
 """
 
 import argparse
@@ -115,8 +115,8 @@ def gradient_check(solver, design, solution, steps) -> dict:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--spans", type=int, default=8, help="knot spans (default 8, the quick space)")
-    parser.add_argument("--substeps", type=int, default=6, help="Runge-Kutta steps per span (default 6)")
+    parser.add_argument("--spans", type=int, default=16, help="knot spans (default 16, the co-design studies')")
+    parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8)")
     parser.add_argument("--iterations", type=int, default=12, help="the gradient method's iterations")
     parser.add_argument("--generations", type=int, default=15, help="CMA-ES generations")
     parser.add_argument("--seed", type=int, default=1)

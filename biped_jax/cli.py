@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "donald" and args.resume and not args.faster:
         args.parser.error("--resume continues the --faster optimisation; give both or neither")
     if args.command == "solve":
-        commands.check_solve(args)  # the problem's own checks, before the output folder is made
+        args.checked = commands.check_solve(args)  # the problem's own checks, before the output folder is made
     if not hasattr(args, "out"):
         return args.run(args)
     with interrupts.handled():

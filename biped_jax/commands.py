@@ -310,7 +310,7 @@ def check_solve(args):
 
 
 def run_solve(args) -> int:
-    problem, settings = check_solve(args)
+    problem, settings = getattr(args, "checked", None) or check_solve(args)  # checked once by cli.main
     solve(args.out, problem, settings, args.smallest_power_limit)
     return 0
 
