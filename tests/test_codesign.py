@@ -246,3 +246,16 @@ def test_co_optimisation_lowers_the_joule_energy_and_stops_when_every_design_is_
     assert len(frozen.ratios) == 1 and "stopped after 0 iterations" in messages[-1]
     with pytest.raises(ValueError, match="one solution per design: 3 for 4"):
         codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, solutions=solutions[:3])
+
+
+def test_the_reduction_against_the_paper_design_reads_study_c_and_the_best_of_study_d():
+    from biped_jax.studies import codesign as codesign_study
+    pareto = {"designs": [{"winding": "RE25-42V", "gearhead": "GP32A-33", "status": "converged", "joule_energy_J": 3.0},
+                          {"winding": "RE25-42V", "gearhead": codesign.REFERENCE_GEARHEAD, "status": "converged",
+                           "joule_energy_J": 5.0}]}
+    optimisation = {"best": 1, "snapped": [{"joule_energy_J": 2.0}, {"joule_energy_J": 1.25}]}
+    reduction = codesign_study.reduction_vs_paper(pareto, optimisation)
+    assert reduction == {"paper_joule_energy_J": 5.0, "best_joule_energy_J": 1.25, "reduction": 0.75}
+    assert codesign_study.reduction_vs_paper(pareto, {"best": None, "snapped": []}) is None
+    pareto["designs"][1]["status"] = "grid dependent"  # the paper's design without a converged gait
+    assert codesign_study.reduction_vs_paper(pareto, optimisation) is None

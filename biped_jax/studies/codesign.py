@@ -196,6 +196,20 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
             "snapped": records, "best": best}
 
 
+def reduction_vs_paper(pareto_study: dict, optimisation: dict) -> dict | None:
+    """The best catalogue design of study (d) against the paper's design (RE 25 42 V, GP 32 A 66:1,
+    Table 2's mass split) as study (c) solved it (the same problem: 0.555 m/s, 20 W, 38 V): both Joule
+    energies per step (J) and the reduction, 1 - best / paper; None where either has no converged gait."""
+    paper = [r for r in pareto_study["designs"] if r.get("winding") == "RE25-42V"
+             and r.get("gearhead") == codesign.REFERENCE_GEARHEAD and r["status"] == nlp.CONVERGED]
+    best = optimisation.get("best")
+    if not paper or best is None:
+        return None
+    paper_energy, best_energy = paper[0]["joule_energy_J"], optimisation["snapped"][best]["joule_energy_J"]
+    return {"paper_joule_energy_J": paper_energy, "best_joule_energy_J": best_energy,
+            "reduction": 1.0 - best_energy / paper_energy}
+
+
 def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.GaitSettings(dynamics="chain"),
                  iterations: int = 5,
                  progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
@@ -230,6 +244,8 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
     save()
     codesign_plots.plot_speed_limits(results["speed_limits"], out / "codesign_speed.png")
     results["co_optimisation"] = kept("co_optimisation", lambda: co_optimisation(solver, x_start, say, iterations))
+    results["co_optimisation"]["energy_reduction_vs_paper"] = reduction_vs_paper(results["pareto"],
+                                                                                 results["co_optimisation"])
     save()
     codesign_plots.plot_optimisation(results["co_optimisation"], out / "codesign_optimisation.png")
     return results
