@@ -33,13 +33,6 @@ SPEED, POWER_LIMIT = 0.555, 20.0
 RATIO_BOUNDS = (14.0, 190.0)
 
 
-def bounds():
-    from biped_jax.codesign import problem as codesign
-    low = np.array([np.log(RATIO_BOUNDS[0])] * 4 + list(codesign.MASS_SPLIT_BOUNDS[0]))
-    high = np.array([np.log(RATIO_BOUNDS[1])] * 4 + list(codesign.MASS_SPLIT_BOUNDS[1]))
-    return low, high
-
-
 def best_so_far(costs):
     return np.minimum.accumulate(np.asarray(costs, dtype=float)).tolist()
 
@@ -62,7 +55,7 @@ def cmaes(solver, paper, reference, generations: int, seed: int) -> dict:
     import cma
 
     from biped_jax.codesign import problem as codesign
-    low, high = bounds()
+    low, high = codesign.design_bounds(RATIO_BOUNDS)
     start = (codesign.design_variables(paper) - low) / (high - low)
     strategy = cma.CMAEvolutionStrategy(start, 0.2, {"bounds": [0.0, 1.0], "seed": seed, "verbose": -9})
     apply = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))

@@ -68,9 +68,8 @@ def main():
 
         def newton_step(hessian, jac_h, jac_g, grad, h, g, s, z, mu):
             sigma = z / s
-            condensed = hessian + jacobian.gram(jac_g, sigma)
-            solve, _ = ip.newton_solver(condensed, jac_h, jnp.zeros(()), jnp.zeros(()),
-                                        options.equality_regularisation)
+            solve, _ = ip.condensed_newton_solver(hessian, jac_h, jac_g, sigma, jnp.zeros(()), jnp.zeros(()),
+                                                  options.equality_regularisation)
             return solve(-(grad + jacobian.rmatvec(jac_g, sigma * (g + s) + mu / s - z)), h)
 
         newton = jax.jit(jax.vmap(newton_step))

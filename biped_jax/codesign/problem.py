@@ -60,6 +60,7 @@ __all__ = [
     "SOLVER_OPTIONS",
     "catalogue_design",
     "co_optimise",
+    "design_bounds",
     "design_gradient",
     "design_record",
     "design_variables",
@@ -214,7 +215,7 @@ def ratio_gradient(solver) -> Callable:
     full = design_gradient(solver)
 
     def gradient(designs, log_ratio, speed, power_limit, step_length, solutions):
-        split = np.asarray(jax.vmap(mass_split)(designs))
+        split = np.asarray(mass_split(designs))  # each design's own
         return full(designs, np.concatenate([np.asarray(log_ratio, float), split], axis=1), speed, power_limit,
                     step_length, solutions)[:, :4]
     return gradient
@@ -246,6 +247,19 @@ def _check_bounds(name: str, bounds, unit: str, within=(0.0, np.inf)) -> tuple[n
     return low, high
 
 
+def design_bounds(ratio_bounds=(14.0, 190.0), mass_split_bounds=MASS_SPLIT_BOUNDS) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of :data:`DESIGN_VARIABLES`, (6,) each: log N within ``ratio_bounds`` (gear ratios),
+    the split within ``mass_split_bounds`` ((low, high) per split variable, fractions). ValueError
+    naming bounds that are not low < high inside (0, inf) and (0, 1)."""
+    ratio_low, ratio_high = _check_bounds("ratio_bounds", ratio_bounds, "gear ratio")
+    split_low, split_high = _check_bounds("mass_split_bounds", mass_split_bounds, "fractions", (0.0, 1.0))
+    if ratio_low.shape != () or split_low.shape != (2,):
+        raise ValueError(f"give ratio_bounds as (low, high) and mass_split_bounds as two values each (leg_fraction, "
+                         f"thigh_share), got {ratio_bounds!r} and {mass_split_bounds!r}")
+    return (np.concatenate([np.full(4, np.log(ratio_low)), split_low]),
+            np.concatenate([np.full(4, np.log(ratio_high)), split_high]))
+
+
 def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                 iterations: int = 6, max_step: float = 0.25, ratio_bounds=(14.0, 190.0),
                 min_step: float = 0.02, solutions: list | None = None,
@@ -274,26 +288,17 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     checks.integer_in("iterations", iterations, 0, 10_000)
     checks.number_in("max_step", max_step, 0.0, 10.0, "(log N)")
     checks.number_in("min_step", min_step, 0.0, 10.0, "(log N)")
-    if not (len(ratio_bounds) == 2 and 0 < ratio_bounds[0] < ratio_bounds[1]):
-        raise ValueError(f"ratio_bounds must be (low, high) with 0 < low < high, got {ratio_bounds!r}")
     theta = np.stack([design_variables(d) for d in designs])
-    if mass_split_bounds is None:
-        split_low, split_high = theta[:, 4:], theta[:, 4:]  # each design keeps its own split
-    else:
-        split_low, split_high = _check_bounds("mass_split_bounds", mass_split_bounds, "fractions", (0.0, 1.0))
-        if split_low.shape != (2,):
-            raise ValueError(f"mass_split_bounds must give two values each (leg_fraction, thigh_share), got "
-                             f"{mass_split_bounds!r}")
+    low, high = (np.tile(b, (len(designs), 1)) for b in
+                 design_bounds(ratio_bounds, MASS_SPLIT_BOUNDS if mass_split_bounds is None else mass_split_bounds))
+    if mass_split_bounds is None:  # each design keeps its own split
+        low[:, 4:], high[:, 4:] = theta[:, 4:], theta[:, 4:]
     gait_problem.check_problem(*(per_design(label, value, len(designs)) for label, value in
                          (("speed", speed), ("power_limit", power_limit), ("step_length", step_length))))
     say = progress or (lambda message: None)
     gradient = design_gradient(solver)
     catalogue = drive_model.load_catalogue()
     base = stack(designs)
-    low = np.concatenate([np.full((len(designs), 4), np.log(ratio_bounds[0])),
-                          np.broadcast_to(split_low, (len(designs), 2))], axis=1)
-    high = np.concatenate([np.full((len(designs), 4), np.log(ratio_bounds[1])),
-                           np.broadcast_to(split_high, (len(designs), 2))], axis=1)
     theta = np.clip(theta, low, high)
     rates = np.array([1.0] * 4 + [SPLIT_STEP_SCALE] * 2)  # each variable's step per unit of the design's
     step = np.full(len(designs), max_step)

@@ -292,6 +292,12 @@ def newton_solver(condensed, jac_h, delta_last, floor, regularisation):
     return solve, delta
 
 
+def condensed_newton_solver(hessian, jac_h, jac_g, sigma, delta_last, floor, regularisation):
+    """:func:`newton_solver` of the Newton system with the slacks and inequality multipliers
+    eliminated: W_c = W + J_g^T diag(sigma) J_g (sigma = z / s; J_g dense or in blocks)."""
+    return newton_solver(hessian + jacobian_ops.gram(jac_g, sigma), jac_h, delta_last, floor, regularisation)
+
+
 def _theta(h, g, s):
     """The constraint violation of the slack form, |h|_1 + |g + s|_1."""
     return jnp.sum(jnp.abs(h)) + jnp.sum(jnp.abs(g + s))
@@ -349,9 +355,9 @@ def _iterate(problem, options, structure, params, st: State) -> State:
     # Newton step on the barrier KKT system, slacks and z eliminated
     s, z = st.s, st.z
     sigma = z / s
-    condensed = hessian + jacobian_ops.gram(jac_g, sigma)
     floor = jnp.where(st.failures > 0, jnp.maximum(st.delta, _DELTA_FIRST) * _GROW_FIRST, 0.0)
-    newton, delta = newton_solver(condensed, jac_h, st.delta, floor, options.equality_regularisation)
+    newton, delta = condensed_newton_solver(hessian, jac_h, jac_g, sigma, st.delta, floor,
+                                            options.equality_regularisation)
     tau = jnp.maximum(_TAU_MIN, 1.0 - mu)
 
     def step(residual_h, residual_g):

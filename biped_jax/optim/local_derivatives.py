@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.optim import jacobian as jacobian_blocks
+from biped_jax.optim import jacobian as jacobian_ops
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -128,7 +128,7 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
 
     def jacobian(per_segment, at_boundary, order):
         # per_segment (S, l, rows): d row / d local column; at_boundary (p, rows_b)
-        return jacobian_blocks.SegmentJacobian(
+        return jacobian_ops.SegmentJacobian(
             segments=jnp.swapaxes(per_segment, 1, 2), boundary=at_boundary.T, columns=columns,
             boundary_columns=jnp.asarray(boundary), order=jnp.asarray(order), size=n)
 
@@ -141,5 +141,5 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
         f = x[local.linear_objective] + beside * (r @ r)
         grad = grad.at[local.linear_objective].add(weight)
     jac_g = jacobian(jg_k, jg_e, local.order_g)
-    return (f, h, g, grad, jacobian_blocks.dense(jacobian(jh_k, jh_e, local.order_h)),
-            jac_g if blocks else jacobian_blocks.dense(jac_g), hessian)
+    return (f, h, g, grad, jacobian_ops.dense(jacobian(jh_k, jh_e, local.order_h)),
+            jac_g if blocks else jacobian_ops.dense(jac_g), hessian)
