@@ -2,7 +2,8 @@
 and bounds, counted in gait solves, in the same run.
 
 The problem: M2 (0.555 m/s, 20 W, 38 V) on the paper's RE 25 42 V drive; the variables
-(``codesign.DESIGN_VARIABLES``): log N per joint within 14-190:1 and the structure's mass split within
+(``codesign.DESIGN_VARIABLES``): log N per joint within 14-190:1, log k_t per joint within the
+catalogue's windings (``codesign.winding_range()``) and the structure's mass split within
 ``codesign.MASS_SPLIT_BOUNDS``; the objective the converged gait's Joule energy per step (the step
 length is fixed, so per metre is the same ranking).
 
@@ -43,12 +44,14 @@ def gradient_method(solver, paper, reference, iterations: int) -> dict:
     path = codesign.co_optimise(solver, [paper], SPEED, POWER_LIMIT, x0=reference.x[None], iterations=iterations,
                                 ratio_bounds=RATIO_BOUNDS, solutions=[reference],
                                 mass_split_bounds=codesign.MASS_SPLIT_BOUNDS,
+                                torque_constant_bounds=codesign.winding_range(),
                                 progress=lambda message: print("  gradient:", message, flush=True))
     seconds = time.perf_counter() - started
     energies = [row[0] for row in path.joule]   # after 0, 1, ... solves beyond the paper design's
     return {"method": "gradient (optax Adam, envelope theorem)", "solves": list(range(1, len(energies) + 1)),
             "best_energy_J": best_so_far(energies), "seconds": seconds, "final_design": path.designs[0],
-            "final_solution": path.solutions[0], "ratios": path.ratios[-1][0], "mass_split": path.mass_splits[-1][0]}
+            "final_solution": path.solutions[0], "ratios": path.ratios[-1][0],
+            "torque_constants_Nm_per_A": path.torque_constants[-1][0], "mass_split": path.mass_splits[-1][0]}
 
 
 def cmaes(solver, paper, reference, generations: int, seed: int) -> dict:
@@ -86,26 +89,6 @@ def solves_to_reach(run: dict, target: float):
     return reached[0] if reached else None
 
 
-def gradient_check(solver, design, solution, steps) -> dict:
-    """The gradient at ``design`` against central differences of optima re-solved at each variable +- its
-    step (one batch of 2 V designs)."""
-    from biped_jax.codesign import problem as codesign
-    theta = codesign.design_variables(design)
-    offsets = np.concatenate([np.diag(steps), -np.diag(steps)])
-    designs = [codesign.with_variables(design, theta + d) for d in offsets]
-    solutions = codesign.solve_designs(solver, designs, SPEED, POWER_LIMIT, x0=np.tile(solution.x, (len(designs), 1)))
-    gradient = codesign.design_gradient(solver)(codesign.stack([design]), theta[None], SPEED, POWER_LIMIT, 0.2,
-                                                [solution])[0]
-    size = len(steps)
-    central = np.array([(solutions[i].cost - solutions[size + i].cost) / (2 * steps[i]) for i in range(size)])
-    ok = [solutions[i].status == "converged" and solutions[size + i].status == "converged" for i in range(size)]
-    error = np.abs(gradient - central) / np.maximum(np.abs(central), 1e-3 * np.max(np.abs(central)))
-    return {"variables": list(codesign.DESIGN_VARIABLES), "envelope": gradient.tolist(),
-            "central_differences": central.tolist(), "steps": list(steps), "re_solves_converged": ok,
-            "relative_error": error.tolist(), "max_relative_error": float(np.max(error[np.array(ok)])) if any(ok)
-            else None}
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spans", type=int, default=16, help="knot spans (default 16, the co-design studies')")
@@ -138,8 +121,8 @@ def main():
     better = min(gradient["best_energy_J"][-1], baseline["best_energy_J"][-1])
     target = better * 1.005
     reach = {"gradient": solves_to_reach(gradient, target), "cmaes": solves_to_reach(baseline, target)}
-    check = gradient_check(solver, gradient["final_design"], gradient["final_solution"],
-                           np.array([0.03] * 4 + [0.01] * 2))
+    check, = codesign.gradient_check(solver, [gradient["final_design"]], [gradient["final_solution"]], SPEED,
+                                     POWER_LIMIT)
     rows = [{k: v for k, v in gradient.items() if k not in ("final_design", "final_solution")}, baseline,
             {"better_best_energy_J": better, "target_J (within 0.5 %)": target,
              "solves_to_target": reach, "paper_energy_J": reference.cost,
@@ -154,7 +137,8 @@ def main():
           f"largest relative error {check['max_relative_error']}")
     save_results(args.name, {"spans": args.spans, "substeps": args.substeps, "speed": SPEED,
                              "power_limit": POWER_LIMIT, "ratio_bounds": RATIO_BOUNDS,
-                             "mass_split_bounds": codesign.MASS_SPLIT_BOUNDS}, rows, args.out)
+                             "mass_split_bounds": codesign.MASS_SPLIT_BOUNDS,
+                             "torque_constant_bounds_Nm_per_A": codesign.winding_range()}, rows, args.out)
 
 
 if __name__ == "__main__":

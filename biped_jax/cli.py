@@ -151,12 +151,19 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("--gaits", type=_input_folder, default=None,
                         help="folder with results.json from `biped-jax reproduce` (default: solve the model here)")
     _space_arguments(replay, " when solving here")
-    design = subcommands.add_parser("codesign", help="co-design studies: gear ratios and mass split optimised with "
-                                 "the gait, windings and masses compared (figures, JSON; tens of minutes)")
+    design = subcommands.add_parser("codesign", help="co-design studies: gear ratios, windings and mass split "
+                                 "optimised with the gait, windings and masses compared (figures, JSON; hours on "
+                                 "2 cores, --quick in minutes)")
     _out_argument(design)
     _space_arguments(design)
     design.add_argument("--iterations", type=_integer("iterations", 1, 1000), default=5,
                         help="co-optimisation iterations, 1-1000 (default 5)")
+    design.add_argument("--starts", type=_integer("starts", 2, 4096), default=64,
+                        help="starting designs per problem of the co-optimisation, 2-4096 (default 64; a power of "
+                             "two keeps the Sobol sequence balanced)")
+    design.add_argument("--quick", action="store_true",
+                        help="a first look in minutes: only the co-optimisation, 8 starts per problem, 2 iterations "
+                             "(overrides --starts/--iterations); every file it writes says so")
     design.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     design.add_argument("--resume", action="store_true",
                         help="continue interrupted studies in --out from their finished parts (OUT/stages)")

@@ -152,31 +152,46 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
     return report
 
 
-def codesign(out: Path, settings, iterations: int, resume: bool = False) -> dict:
-    """The co-design studies; see :mod:`biped_jax.studies.codesign`."""
+def codesign(out: Path, settings, iterations: int, resume: bool = False, starts: int = 64,
+             quick: bool = False) -> dict:
+    """The co-design studies; see :mod:`biped_jax.studies.codesign`. ``quick``: study (d) alone with
+    :data:`~biped_jax.studies.codesign.QUICK_STARTS` starts and ``QUICK_ITERATIONS`` iterations
+    (``starts`` and ``iterations`` ignored), every file stamped."""
     from biped_jax.studies import codesign as codesign_study
 
     started = time.perf_counter()
-    with live_progress() as progress:
-        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume)
-    for speed, fit in results["mass_scaling"]["fits"].items():
-        console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
-                      f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses converged)")
-    limits = results["speed_limits"]
-    best = int(np.argmax(np.nan_to_num(limits["max_speed_mps"], nan=-1.0)))
-    console.print(f"(b) fastest: {limits['max_speed_mps'][best]:.3f} m/s with {limits['gearheads'][best]}")
-    front = [results["pareto"]["designs"][i] for i in results["pareto"]["pareto"]]
-    console.print("(c) Pareto front: " + ", ".join(
-        f"{r['winding']} + {r['gearhead']} ({r['total_mass_kg']:.2f} kg, {r['joule_energy_per_metre_J_per_m']:.3g} J/m)"
-        for r in front))
-    optimum = results["co_optimisation"]
-    if optimum["best"] is None:
-        console.print("(d) no snapped design has a converged gait")
-    else:
-        record = optimum["snapped"][optimum["best"]]
-        console.print(f"(d) best snapped design: {', '.join(record['gearheads'])}: {record['status']}, "
-                      f"{record['joule_energy_J']:.4g} J per step")
-    console.print(f"wrote {out}/codesign.json and four figures in {time.perf_counter() - started:.0f} s")
+    if quick:
+        starts, iterations = codesign_study.QUICK_STARTS, codesign_study.QUICK_ITERATIONS
+    stamp = outputs.stamped(codesign_study.QUICK_STAMP) if quick else contextlib.nullcontext()
+    with live_progress() as progress, stamp:
+        if quick:
+            console.log(codesign_study.QUICK_STAMP)
+        results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume, starts=starts,
+                                              optimisation_only=quick)
+    if not quick:
+        for speed, fit in results["mass_scaling"]["fits"].items():
+            console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
+                          f"metre ~ M^{fit['joule_per_metre_exponent']:.2f} ({fit['converged']} of 8 masses "
+                          "converged)")
+        limits = results["speed_limits"]
+        best = int(np.argmax(np.nan_to_num(limits["max_speed_mps"], nan=-1.0)))
+        console.print(f"(b) fastest: {limits['max_speed_mps'][best]:.3f} m/s with {limits['gearheads'][best]}")
+        front = [results["pareto"]["designs"][i] for i in results["pareto"]["pareto"]]
+        console.print("(c) Pareto front: " + ", ".join(
+            f"{r['winding']} + {r['gearhead']} ({r['total_mass_kg']:.2f} kg, "
+            f"{r['joule_energy_per_metre_J_per_m']:.3g} J/m)" for r in front))
+    for name, entry in results["co_optimisation"]["per_problem"].items():
+        if entry["best"] is None:
+            console.print(f"(d) {name}: no snapped design has a converged gait")
+            continue
+        record, reduction = entry["best_design"], entry["energy_reduction_vs_paper"]
+        against = (f"{reduction['reduction']:.0%} below the paper's design" if reduction["reduction"] is not None
+                   else reduction["reason"])
+        console.print(f"(d) {name}: best catalogue design {' / '.join(record['gearheads'])}, "
+                      f"{' / '.join(record['motors'])}: {record['joule_energy_per_metre_J_per_m']:.4g} J/m, "
+                      f"{against}")
+    figures = "codesign_optimisation.png" if quick else "four figures"
+    console.print(f"wrote {out}/codesign.json and {figures} in {time.perf_counter() - started:.0f} s")
     return results
 
 
@@ -271,7 +286,7 @@ def run_humanoid(args) -> int:
 
 def run_codesign(args) -> int:
     configure_jax()
-    codesign(args.out, _settings(args), args.iterations, args.resume)
+    codesign(args.out, _settings(args), args.iterations, args.resume, args.starts, args.quick)
     return 0
 
 

@@ -18,6 +18,7 @@ from biped_jax.optim import nlp
 
 SPEED, POWER_LIMIT = 0.555, 20.0  # M2
 LOG_STEP = 0.03  # central difference in log N
+WINDING_STEP = 0.01  # central difference in log k_t (smaller: the voltage limit's active set moves with k_t)
 
 
 def test_armature_is_ratio_squared_times_rotor_and_gear_inertia(biped12):
@@ -152,28 +153,67 @@ def test_the_mass_split_keeps_the_total_and_gives_the_design_back_at_its_own_spl
 
 
 def test_the_projected_step_keeps_every_design_within_its_bounds():
-    """A huge gradient either way: with a small rate each variable moves by its rate (log N by the rate,
-    the split by SPLIT_STEP_SCALE times it); with a large one it stops on its bound; a variable with
-    low = high (a design's own split, held) never moves."""
+    """A huge gradient either way: with a small rate each variable moves by its rate (log N and log k_t
+    by the rate, the split by SPLIT_STEP_SCALE times it); with a large one it stops on its bound; a
+    variable with low = high (the second design's own windings and split, held) never moves."""
     import optax
     theta = jnp.asarray(np.stack([codesign.design_variables(codesign.catalogue_design())] * 2))
-    low = np.concatenate([np.full((2, 4), np.log(14.0)), [[0.2, 0.25], theta[1, 4:]]], axis=1)
-    high = np.concatenate([np.full((2, 4), np.log(190.0)), [[0.5, 0.75], theta[1, 4:]]], axis=1)
+    low, high = (np.tile(b, (2, 1)) for b in codesign.design_bounds())
+    held = np.r_[codesign.WINDINGS.start:codesign.SPLIT.stop]
+    low[1, held], high[1, held] = theta[1, held], theta[1, held]
     adam = optax.inject_hyperparams(optax.adam)(learning_rate=0.25)
-    rates = jnp.array([1.0] * 4 + [codesign.SPLIT_STEP_SCALE] * 2)
-    for rate in (0.25, 4.0):
+    rates = np.ones(10)
+    rates[codesign.SPLIT] = codesign.SPLIT_STEP_SCALE
+    for rate in (0.1, 4.0):
         state = jax.vmap(adam.init)(theta)
         state.hyperparams["learning_rate"] = jnp.full(2, rate)
         for sign in (1.0, -1.0):
-            trial, _ = codesign._projected_step(adam, jnp.full((2, 6), 1e6 * sign), state, theta, rates,
+            trial, _ = codesign._projected_step(adam, jnp.full((2, 10), 1e6 * sign), state, theta, jnp.asarray(rates),
                                                 jnp.asarray(low), jnp.asarray(high))
             trial = np.asarray(trial)
             assert np.all(trial >= low) and np.all(trial <= high)
-            np.testing.assert_array_equal(trial[1, 4:], theta[1, 4:])
+            np.testing.assert_array_equal(trial[1, held], theta[1, held])
             if rate < 1:  # inside the bounds: Adam's first step is the rate against the gradient's sign
-                np.testing.assert_allclose(np.asarray(theta)[0] - trial[0], sign * rate * np.asarray(rates), rtol=1e-6)
+                np.testing.assert_allclose(np.asarray(theta)[0] - trial[0], sign * rate * rates, rtol=1e-6)
             else:  # on the bound the gradient points away from
                 np.testing.assert_array_equal(trial[0], low[0] if sign > 0 else high[0])
+    # what a projected step can still use: nothing of a held variable, nothing pointing out at a bound
+    grad = np.array([[1.0, -1.0, 1.0, -1.0] * 2 + [1.0, 1.0]] * 2)
+    at_bounds = np.where(grad > 0, low, high)  # every variable on the bound its gradient points out of
+    assert not np.any(codesign.projected_gradient(grad, at_bounds, low, high))
+    free = codesign.projected_gradient(grad, 0.5 * (low + high), low, high)
+    np.testing.assert_array_equal(free[0], grad[0])
+    assert not np.any(free[1, held]) and np.all(free[1, :4] == grad[1, :4])
+
+
+def test_the_winding_moves_along_the_family_at_the_motor_constant():
+    """log k_t as a variable: R follows as (k_t / k_t0)^2, so R / k_t^2 (the Joule energy per torque^2)
+    stays; at its own winding a design is itself; the catalogue's windings lie on that line to 1 % (the
+    two datasheet windings +0.5 % and -1.0 % of the 42 V one; the estimated windings are built on it)
+    and bound the variable; snapping takes the winding at or below (the voltage need grows with k_t)."""
+    catalogue = drive_model.load_catalogue()
+    reference = codesign.catalogue_design()
+    own = codesign.with_torque_constant(reference, jnp.log(reference.torque_constant))
+    np.testing.assert_allclose(own.resistance, reference.resistance, rtol=1e-14)
+    moved = codesign.with_torque_constant(reference, jnp.log(jnp.array([0.0234, 0.03, 0.04, 0.0468])))
+    np.testing.assert_allclose(moved.resistance / moved.torque_constant**2,
+                               reference.resistance / reference.torque_constant**2, rtol=1e-13)
+    assert moved.rotor_inertia is reference.rotor_inertia and moved.motor_mass is reference.motor_mass
+    for motor in catalogue.motors.values():
+        assert motor.resistance / motor.torque_constant**2 == pytest.approx(
+            float(reference.resistance[0] / reference.torque_constant[0]**2), rel=0.01)
+    assert codesign.winding_range(catalogue) == pytest.approx((0.0234, 0.0468))
+    assert codesign.nearest_winding(0.0409, catalogue) == "RE25-42V"
+    assert codesign.nearest_winding(0.0408, catalogue) == "RE25-118754"  # 35.6 mNm/A, below
+    assert codesign.nearest_winding(0.01, catalogue) == "RE25-118752"  # the smallest
+    assert codesign.nearest_winding(0.1, catalogue) == "RE25-48V"
+    with pytest.raises(ValueError, match="torque_constant must be positive"):
+        codesign.nearest_winding(-1.0, catalogue)
+    low, high = codesign.design_bounds()
+    np.testing.assert_allclose(np.exp(low[codesign.WINDINGS]), 0.0234)
+    np.testing.assert_allclose(np.exp(high[codesign.WINDINGS]), 0.0468)
+    with pytest.raises(ValueError, match="torque_constant_bounds must be"):
+        codesign.design_bounds(torque_constant_bounds=(0.05, 0.02))
 
 
 @pytest.fixture(scope="module")
@@ -185,6 +225,58 @@ def split_batch(design_solver, ratio_batch, paper_solutions):
     designs = [codesign.with_mass_split(centre, jnp.asarray(own + d)) for d in offsets]
     x0 = np.tile(paper_solutions[1].x, (4, 1))
     return designs, codesign.solve_designs(design_solver, designs, SPEED, POWER_LIMIT, x0=x0)
+
+
+@pytest.fixture(scope="module")
+def winding_batch(design_solver, ratio_batch):
+    """The centre design of ``ratio_batch`` on a supply voltage 10 % below what its gait needs, at
+    log k_t -+ d (all four joints; the centre twice), warm-started from its gait."""
+    centre, solution = ratio_batch[0][1], ratio_batch[2][1]
+    needed = codesign.design_record(centre, solution)["max_voltage_needed_V"]
+    low_supply = dataclasses.replace(centre, supply_voltage=jnp.asarray(0.9 * needed))
+    log_kt = np.log(np.asarray(centre.torque_constant))
+    designs = [codesign.with_torque_constant(low_supply, jnp.asarray(log_kt + d))
+               for d in WINDING_STEP * np.array([-1.0, 0.0, 1.0, 0.0])]
+    return designs, codesign.solve_designs(design_solver, designs, SPEED, POWER_LIMIT,
+                                           x0=np.tile(solution.x, (4, 1)))
+
+
+@pytest.mark.slow
+def test_the_winding_matters_only_where_the_voltage_limit_binds(design_solver, ratio_batch, winding_batch):
+    """Along the winding family the Joule energy R (T_m / k_t)^2 is the same, only the voltage need
+    k_t (R/k_t^2 T_m + omega_m) grows with k_t: with the voltage limit inactive (38 V) d J*/d log k_t
+    vanishes; on a supply 10 % below the gait's need it is positive and equals central differences of
+    the optima re-solved at log k_t +- d."""
+    designs, _, solutions = ratio_batch
+    theta = np.stack([codesign.design_variables(d) for d in designs])
+    gradient = codesign.design_gradient(design_solver)(codesign.stack(designs), theta, SPEED, POWER_LIMIT, 0.2,
+                                                       solutions)[1]
+    assert np.max(np.abs(gradient[codesign.WINDINGS])) < 1e-6 * np.max(np.abs(gradient[codesign.RATIOS]))
+    designs, solutions = winding_batch
+    assert [s.status for s in solutions] == [nlp.CONVERGED] * 4
+    assert solutions[1].cost > ratio_batch[2][1].cost  # the low supply costs energy
+    theta = np.stack([codesign.design_variables(d) for d in designs])
+    gradient = codesign.design_gradient(design_solver)(codesign.stack(designs), theta, SPEED, POWER_LIMIT, 0.2,
+                                                       solutions)[1]
+    finite_difference = (solutions[2].cost - solutions[0].cost) / (2 * WINDING_STEP)
+    assert finite_difference > 0.01 * solutions[1].cost
+    assert gradient[codesign.WINDINGS].sum() == pytest.approx(finite_difference, rel=5e-3)
+
+
+@pytest.mark.slow
+def test_the_gradient_check_judges_every_variable_on_its_own(design_solver, ratio_batch):
+    """codesign.gradient_check at the centre design: each of the ten variables +- its step re-solved
+    (in the batch size of 4 the module already compiled), every component within 0.5 % of its central
+    difference (flat windings against 1 % of the largest component)."""
+    designs, _, solutions = ratio_batch
+    check, = codesign.gradient_check(design_solver, [designs[1]], [solutions[1]], SPEED, POWER_LIMIT, batch=4)
+    assert all(check["re_solves_converged"])
+    assert check["max_relative_error"] < 5e-3, check
+    envelope, central = np.array(check["envelope"]), np.array(check["central_differences"])
+    assert np.max(np.abs(envelope[codesign.WINDINGS])) < 1e-6 * np.max(np.abs(envelope))
+    assert np.max(np.abs(central[codesign.WINDINGS])) < 1e-3 * np.max(np.abs(central))
+    with pytest.raises(ValueError, match="steps must be 10 positive numbers"):
+        codesign.gradient_check(design_solver, [designs[1]], [solutions[1]], SPEED, POWER_LIMIT, steps=(0.01,) * 6)
 
 
 @pytest.mark.slow
@@ -204,7 +296,7 @@ def test_gradient_of_the_optimal_joule_energy_matches_re_solved_optima(design_so
     for variable in (0, 1):  # leg_fraction, thigh_share
         minus, plus = split_solutions[2 * variable], split_solutions[2 * variable + 1]
         finite_difference = (plus.cost - minus.cost) / (2 * SPLIT_STEP)
-        assert gradient[1, 4 + variable] == pytest.approx(finite_difference, rel=5e-3), variable
+        assert gradient[1, codesign.SPLIT][variable] == pytest.approx(finite_difference, rel=5e-3), variable
     # the ratio-only gradient is the same program's first four columns
     per_joint = codesign.ratio_gradient(design_solver)(codesign.stack(designs), np.tile(log_ratio[:, None], (1, 4)),
                                                         SPEED, POWER_LIMIT, 0.2, solutions)
@@ -232,8 +324,10 @@ def test_co_optimisation_lowers_the_joule_energy_and_stops_when_every_design_is_
     assert [s.cost for s in path.solutions] == list(after)
     # with the mass split free too: a design whose gait did not converge is masked (it keeps its point)
     # and never moves the others, which take the same step as in a batch without it
+    # (the windings free as well: at 38 V their gradient is flat, so they stay)
     split = [codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=1, max_step=0.1,
-                                  solutions=given, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS)
+                                  solutions=given, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS,
+                                  torque_constant_bounds=codesign.winding_range())
              for given in (solutions, [dataclasses.replace(solutions[0], status=nlp.ITERATION_LIMIT)] + solutions[1:])]
     free, masked = split
     assert masked.mass_splits[1][0] == masked.mass_splits[0][0] and masked.ratios[1][0] == masked.ratios[0][0]
@@ -241,6 +335,11 @@ def test_co_optimisation_lowers_the_joule_energy_and_stops_when_every_design_is_
     np.testing.assert_allclose(np.array(masked.joule[1])[1:], np.array(free.joule[1])[1:], rtol=1e-10)
     assert np.all(np.array(free.joule[1]) <= np.array(free.joule[0]))
     assert np.any(np.array(free.mass_splits[1]) != np.array(free.mass_splits[0]))
+    np.testing.assert_array_equal(free.torque_constants[1], free.torque_constants[0])
+    # the projected-gradient rule: with a tolerance no gradient passes, every design is stationary at once
+    still = codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=3, max_step=0.1,
+                                 solutions=solutions, gradient_tolerance=1e3, progress=messages.append)
+    assert len(still.ratios) == 1 and still.stationary == [True] * 4 and "every design stationary" in messages[-1]
     frozen = codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, x0=x0, iterations=3,
                                   max_step=0.1, min_step=1.0, solutions=solutions, progress=messages.append)
     assert len(frozen.ratios) == 1 and "stopped after 0 iterations" in messages[-1]
@@ -248,14 +347,39 @@ def test_co_optimisation_lowers_the_joule_energy_and_stops_when_every_design_is_
         codesign.co_optimise(design_solver, designs, SPEED, POWER_LIMIT, solutions=solutions[:3])
 
 
-def test_the_reduction_against_the_paper_design_reads_study_c_and_the_best_of_study_d():
+def test_the_reduction_against_the_paper_design_says_why_where_there_is_none():
     from biped_jax.studies import codesign as codesign_study
-    pareto = {"designs": [{"winding": "RE25-42V", "gearhead": "GP32A-33", "status": "converged", "joule_energy_J": 3.0},
-                          {"winding": "RE25-42V", "gearhead": codesign.REFERENCE_GEARHEAD, "status": "converged",
-                           "joule_energy_J": 5.0}]}
-    optimisation = {"best": 1, "snapped": [{"joule_energy_J": 2.0}, {"joule_energy_J": 1.25}]}
-    reduction = codesign_study.reduction_vs_paper(pareto, optimisation)
-    assert reduction == {"paper_joule_energy_J": 5.0, "best_joule_energy_J": 1.25, "reduction": 0.75}
-    assert codesign_study.reduction_vs_paper(pareto, {"best": None, "snapped": []}) is None
-    pareto["designs"][1]["status"] = "grid dependent"  # the paper's design without a converged gait
-    assert codesign_study.reduction_vs_paper(pareto, optimisation) is None
+    paper, best = {"status": "converged", "joule_energy_J": 5.0}, {"joule_energy_J": 1.25}
+    assert codesign_study.energy_reduction(paper, best) == {"paper_joule_energy_J": 5.0, "best_joule_energy_J": 1.25,
+                                                            "reduction": 0.75}
+    assert codesign_study.energy_reduction(paper, None) is None
+    reduction = codesign_study.energy_reduction({"status": "grid dependent", "joule_energy_J": 9.0}, best)
+    assert reduction["reduction"] is None and "no converged gait (grid dependent)" in reduction["reason"]
+
+
+def test_the_study_starts_from_the_paper_design_and_snaps_each_joint_to_the_catalogue():
+    """Study (d)'s starts: the paper's design, then Sobol points within the bounds; the snap takes per
+    joint the nearest gearhead and the winding at or below, the split kept."""
+    from biped_jax.studies import codesign as codesign_study
+    catalogue = drive_model.load_catalogue()
+    paper = codesign.catalogue_design(mass_class="18kg", catalogue=catalogue)
+    low, high = codesign.design_bounds()
+    starts = codesign_study.design_starts(paper, 8, low, high)
+    assert starts.shape == (8, 10) and np.all(starts >= low) and np.all(starts <= high)
+    np.testing.assert_allclose(starts[0], codesign.design_variables(paper), rtol=1e-14)
+    assert len({tuple(row) for row in starts}) == 8
+    np.testing.assert_array_equal(codesign_study.design_starts(paper, 8, low, high), starts)  # seeded
+    theta = codesign.design_variables(paper)
+    theta[codesign.RATIOS] = np.log([180.0, 60.0, 20.0, 100.0])
+    theta[codesign.WINDINGS] = np.log([0.040, 0.0409, 0.030, 0.0234])
+    theta[codesign.SPLIT] = [0.3, 0.6]
+    continuous = codesign.with_variables(paper, jnp.asarray(theta))
+    motors, heads, design = codesign_study.snapped_design(continuous, "18kg", catalogue)
+    assert motors == ("RE25-118754", "RE25-42V", "RE25-30V", "RE25-118752")
+    assert heads == ("GP32A-190", "GP32A-66.22", "GP32A-21", "GP32A-103")
+    np.testing.assert_allclose(design.torque_constant, [catalogue.motor(m).torque_constant for m in motors])
+    np.testing.assert_allclose(design.resistance, [catalogue.motor(m).resistance for m in motors])
+    np.testing.assert_allclose(design.ratio, [catalogue.gearhead(h).ratio for h in heads])
+    np.testing.assert_allclose(codesign.mass_split(design), [0.3, 0.6], rtol=1e-12)
+    with pytest.raises(ValueError, match="give one motor or four"):
+        codesign.catalogue_design(("RE25-42V",) * 3)

@@ -117,12 +117,21 @@ def _structure_of(mass_class: str, drive_mass: float) -> np.ndarray:
     return structure
 
 
-def catalogue_design(motor: str = REFERENCE_MOTOR, gearhead: str | tuple[str, ...] = REFERENCE_GEARHEAD,
+def _four(kind: str, names: str | tuple[str, ...]) -> tuple[str, ...]:
+    """One part name for all four joints, or four; ValueError naming any other count."""
+    four = (names,) * 4 if isinstance(names, str) else tuple(names)
+    if len(four) != 4:
+        raise ValueError(f"give one {kind} or four (H1, K1, H2, K2), got {names!r}")
+    return four
+
+
+def catalogue_design(motor: str | tuple[str, ...] = REFERENCE_MOTOR,
+                     gearhead: str | tuple[str, ...] = REFERENCE_GEARHEAD,
                      mass_class: str = "12kg", total_mass: float | None = None,
                      supply_voltage: float | None = None,
                      catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
-    """A catalogue motor at all four joints with one gearhead, or one per joint (a tuple of four names
-    in (H1, K1, H2, K2) order).
+    """A catalogue motor and gearhead at all four joints, or one of either per joint (a tuple of four
+    names in (H1, K1, H2, K2) order).
 
     The structure is the mass class's links less the reference drives (so the reference design weighs
     the nominal 12 or 18 kg); ``total_mass`` (kg) scales the structure uniformly to reach that total.
@@ -130,28 +139,24 @@ def catalogue_design(motor: str = REFERENCE_MOTOR, gearhead: str | tuple[str, ..
     unknown part or an unreachable total mass.
     """
     catalogue = catalogue or drive_model.load_catalogue()
-    m = catalogue.motor(motor)
-    names = (gearhead,) * 4 if isinstance(gearhead, str) else tuple(gearhead)
-    if len(names) != 4:
-        raise ValueError(f"give one gearhead or four (H1, K1, H2, K2), got {gearhead!r}")
-    heads = [catalogue.gearhead(name) for name in names]
+    motors = [catalogue.motor(name) for name in _four("motor", motor)]
+    heads = [catalogue.gearhead(name) for name in _four("gearhead", gearhead)]
     reference = catalogue.motor(REFERENCE_MOTOR).mass + catalogue.gearhead(REFERENCE_GEARHEAD).mass
     structure = _structure_of(mass_class, reference)
-    drives_mass = 4 * m.mass + sum(h.mass for h in heads)
+    drives_mass = sum(m.mass for m in motors) + sum(h.mass for h in heads)
     if total_mass is not None:
         if not (math.isfinite(total_mass) and total_mass > drives_mass):
             raise ValueError(f"total_mass must exceed the drives' {drives_mass:.2f} kg, got {total_mass!r}")
         structure = structure * (total_mass - drives_mass) / structure.sum()
-    four = lambda value: jnp.full(4, float(value))  # noqa: E731
     voltage = catalogue.supply_voltage if supply_voltage is None else supply_voltage
     if not (math.isfinite(voltage) and voltage > 0):
         raise ValueError(f"supply_voltage must be positive, got {voltage!r}")
-    per_joint = lambda field: jnp.array([getattr(h, field) for h in heads], dtype=float)  # noqa: E731
-    return DriveDesign(ratio=per_joint("ratio"), gear_efficiency=per_joint("efficiency"),
-                       gear_inertia=per_joint("inertia"), gear_mass=per_joint("mass"),
-                       torque_constant=four(m.torque_constant),
-                       resistance=four(m.resistance), rotor_inertia=four(m.rotor_inertia),
-                       motor_mass=four(m.mass), structure_mass=jnp.asarray(structure),
+    per_joint = lambda parts, field: jnp.array([getattr(p, field) for p in parts], dtype=float)  # noqa: E731
+    return DriveDesign(ratio=per_joint(heads, "ratio"), gear_efficiency=per_joint(heads, "efficiency"),
+                       gear_inertia=per_joint(heads, "inertia"), gear_mass=per_joint(heads, "mass"),
+                       torque_constant=per_joint(motors, "torque_constant"),
+                       resistance=per_joint(motors, "resistance"), rotor_inertia=per_joint(motors, "rotor_inertia"),
+                       motor_mass=per_joint(motors, "mass"), structure_mass=jnp.asarray(structure),
                        supply_voltage=jnp.asarray(float(voltage)))
 
 
@@ -212,6 +217,43 @@ def with_mass_split(design: DriveDesign, split: jax.Array) -> DriveDesign:
     shanks = split[0] * (1.0 - split[1]) / (own[0] * (1.0 - own[1]))
     factors = jnp.stack([torso, thighs, shanks, thighs, shanks])  # the total kept: 1 - f + f t + f (1 - t) = 1
     return dataclasses.replace(design, structure_mass=mass * factors)
+
+
+def with_torque_constant(design: DriveDesign, log_torque_constant: jax.Array) -> DriveDesign:
+    """``design`` with the motor windings' torque constants exp(log_torque_constant) (N m/A, (4,),
+    traceable), moving along the winding family of the design's own motor: the terminal resistance
+    follows as R = R_0 (k_t / k_t0)^2 from the design's own winding (k_t0, R_0), so that the motor
+    constant k_t / sqrt(R) stays the family's (the catalogue's RE 25 windings have R / k_t^2 within
+    1 % of the 42 V winding's: the datasheet windings +0.5 % and -1.0 %, the estimated ones built on
+    it), and the rotor inertia and mass stay (equal across the windings). Exact at the design's own
+    winding; the Joule energy R (T_m / k_t)^2 does not change along the family, only the voltage
+    V = k_t (R/k_t^2 T_m + omega_m) does."""
+    torque_constant = jnp.exp(log_torque_constant)
+    scale = torque_constant / design.torque_constant
+    return dataclasses.replace(design, torque_constant=torque_constant, resistance=design.resistance * scale**2)
+
+
+def winding_range(catalogue: drive_model.Catalogue | None = None) -> tuple[float, float]:
+    """The smallest and largest torque constant of the catalogue's windings, N m/A: the bounds of the
+    continuous winding variable (:func:`with_torque_constant`)."""
+    catalogue = catalogue or drive_model.load_catalogue()
+    constants = [m.torque_constant for m in catalogue.motors.values()]
+    return min(constants), max(constants)
+
+
+def nearest_winding(torque_constant: float, catalogue: drive_model.Catalogue | None = None) -> str:
+    """The catalogue winding for a continuous torque constant (N m/A): the one with the largest k_t not
+    above ``torque_constant`` (1e-6 relative tolerance), else the smallest. Below rather than nearest:
+    along the family the Joule energy is the same and the voltage a gait needs grows with k_t, so a
+    smaller k_t keeps the continuous design's voltage margin (at the price of more current).
+    ValueError for a non-positive or non-finite torque constant."""
+    catalogue = catalogue or drive_model.load_catalogue()
+    if not (isinstance(torque_constant, (int, float, np.floating)) and math.isfinite(torque_constant)
+            and torque_constant > 0):
+        raise ValueError(f"torque_constant must be positive and finite (N m/A), got {torque_constant!r}")
+    motors = sorted(catalogue.motors.values(), key=lambda m: m.torque_constant)
+    below = [m for m in motors if m.torque_constant <= torque_constant * (1 + 1e-6)]
+    return (below[-1] if below else motors[0]).part
 
 
 def nearest_gearhead(ratio: float, catalogue: drive_model.Catalogue | None = None) -> str:

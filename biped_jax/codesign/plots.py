@@ -90,39 +90,58 @@ def plot_pareto(study: dict, path: Path) -> None:
     plt.close(figure)
 
 
-def plot_optimisation(study: dict, path: Path) -> None:
-    """Joule energy of every start over the iterations, the ratios of the best design, and every
-    design's path in (knee ratio, legs' share of the mass)."""
-    plt = outputs.pyplot()
-    splits = study["path"].get("mass_splits")
-    figure, axes = plt.subplots(1, 3 if splits else 2, figsize=(16 if splits else 11, 4.2), constrained_layout=True)
+def best_by_iteration(study: dict, problem: str) -> np.ndarray:
+    """The lowest converged Joule energy (J) of ``problem``'s designs after each co-design iteration
+    (NaN where none converged), (iterations + 1,)."""
     joule = np.array(study["path"]["joule_J"], dtype=float)  # (iterations + 1, B)
     status = np.array(study["path"]["status"])
-    masked = np.where(status == CONVERGED, joule, np.nan)
-    axes[0].plot(masked, "-o", ms=3, alpha=0.7)
-    axes[0].set_xlabel("co-design iteration")
-    axes[0].set_ylabel("Joule energy per step [J]")
-    axes[0].set_title("(d) 16 starts (converged gaits)")
-    axes[0].grid(alpha=0.3)
+    mine = np.array([d["problem"] == problem for d in study["designs"]])
+    masked = np.where((status == CONVERGED) & mine[None], joule, np.inf)
+    best = masked.min(axis=1)
+    return np.where(np.isfinite(best), best, np.nan)
+
+
+def plot_optimisation(study: dict, path: Path) -> None:
+    """Study (d): per problem the best converged energy against the gait solves spent, the gradient
+    method against CMA-ES; every design's path in (knee ratio, legs' share of the structure mass) and
+    in (hip ratio, hip winding's torque constant)."""
+    plt = outputs.pyplot()
+    figure, axes = plt.subplots(1, 3, figsize=(17, 4.6), constrained_layout=True)
+    problems = [p["name"] for p in study["problems"]]
+    colours = dict(zip(problems, ("tab:blue", "tab:red", "tab:green", "tab:purple")))
+    starts = study["starts_per_problem"]
+    for name in problems:
+        best = best_by_iteration(study, name)
+        axes[0].semilogy(starts * np.arange(1, len(best) + 1), best, "-o", ms=4, color=colours[name],
+                         label=f"{name}: gradient (Adam, envelope theorem)")
+        baseline = study.get("baseline", {}).get("per_problem", {}).get(name)
+        if baseline:
+            energies = np.array([np.nan if e is None else e for e in baseline["best_energy_J"]], dtype=float)
+            axes[0].semilogy(baseline["solves"], energies, "--s", ms=4, color=colours[name], alpha=0.7,
+                             label=f"{name}: CMA-ES")
+        paper = study["per_problem"][name]["paper_design"]
+        if paper["status"] == CONVERGED:
+            axes[0].axhline(paper["joule_energy_J"], color=colours[name], lw=0.8, ls=":")
+    axes[0].set_xlabel("gait solves")
+    axes[0].set_ylabel("best Joule energy per step [J] (dotted: the paper's design)")
+    axes[0].set_title(f"(d) {starts} starts per problem, converged gaits")
+    axes[0].grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7)
     ratios = np.array(study["path"]["ratios"])  # (iterations + 1, B, 4)
-    final = masked[-1]
-    if np.any(np.isfinite(final)):
-        best = int(np.nanargmin(final))
-        for k, joint in enumerate(("H1", "K1", "H2", "K2")):
-            axes[1].semilogy(ratios[:, best, k], "-o", ms=3, label=joint)
-        axes[1].set_title(f"gear ratios of the best start ({final[best]:.3g} J)")
-        axes[1].legend(fontsize=8)
-    axes[1].set_xlabel("co-design iteration")
-    axes[1].set_ylabel("gear ratio N")
-    axes[1].grid(alpha=0.3, which="both")
-    if splits:
-        legs = np.array(splits)[:, :, 0]  # (iterations + 1, B)
-        for b in range(legs.shape[1]):
-            axes[2].semilogx(ratios[:, b, 1], legs[:, b], "-", lw=1, alpha=0.7)
-            axes[2].plot(ratios[-1, b, 1], legs[-1, b], "k.", ms=5)
-        axes[2].set_xlabel("knee gear ratio N (K1)")
-        axes[2].set_ylabel("legs' share of the structure mass")
-        axes[2].set_title("every design's path (dot: where it ended)")
-        axes[2].grid(alpha=0.3, which="both")
+    legs = np.array(study["path"]["mass_splits"])[:, :, 0]  # (iterations + 1, B)
+    constants = np.array(study["path"]["torque_constants_Nm_per_A"]) * 1e3  # mN m/A
+    for b, design in enumerate(study["designs"]):
+        colour = colours[design["problem"]]
+        for axis, x, y in ((axes[1], ratios[:, b, 1], legs[:, b]), (axes[2], ratios[:, b, 0], constants[:, b, 0])):
+            axis.semilogx(x, y, "-", lw=0.8, alpha=0.6, color=colour)
+            axis.plot(x[-1], y[-1], ".", ms=5, color=colour if design["status"] == CONVERGED else "0.6")
+    axes[1].set_xlabel("knee gear ratio N (K1)")
+    axes[1].set_ylabel("legs' share of the structure mass")
+    axes[1].set_title("every design's path (dot: where it ended; grey: no converged gait)")
+    axes[2].set_xlabel("hip gear ratio N (H1)")
+    axes[2].set_ylabel("hip winding's torque constant k_t [mN m/A]")
+    axes[2].set_title("ratio and winding (flat in k_t while the voltage limit is inactive)")
+    for axis in axes[1:]:
+        axis.grid(alpha=0.3, which="both")
     outputs.save_figure(figure, path, dpi=120)
     plt.close(figure)

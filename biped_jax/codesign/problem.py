@@ -37,12 +37,15 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
     joint_drives,
     mass_split,
     nearest_gearhead,
+    nearest_winding,
     reflected_inertia,
     robot_design,
     stack,
     unstack,
+    winding_range,
     with_mass_split,
     with_ratio,
+    with_torque_constant,
 )
 from biped_jax.drives import model as drive_model
 from biped_jax.gait import problem as gait_problem
@@ -64,18 +67,23 @@ __all__ = [
     "design_gradient",
     "design_record",
     "design_variables",
+    "gradient_check",
+    "projected_gradient",
     "design_gait_model",
     "joint_drives",
     "mass_split",
     "nearest_gearhead",
+    "nearest_winding",
     "ratio_gradient",
     "reflected_inertia",
     "robot_design",
     "solve_designs",
     "stack",
     "unstack",
+    "winding_range",
     "with_mass_split",
     "with_ratio",
+    "with_torque_constant",
     "with_variables",
 ]
 
@@ -131,7 +139,8 @@ def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_l
 def design_record(design: DriveDesign, solution) -> dict:
     """A JSON-ready summary of one solved design: hardware, status, Joule energy (J and J/m; the
     objective, with the smooth efficiency switch, and with the exact one), the integral of u^T u, peak
-    joint power, the largest voltage needed (exact efficiency law) and the violations."""
+    joint power, the largest voltage needed (exact efficiency law), the peak winding current per joint
+    (A: what a lower winding costs) and the violations."""
     trajectory = solution.trajectory
     drives = joint_drives(design)
     torque_at_motor = drive_model.motor_torque(trajectory.u, trajectory.joint_speed, drives.ratio,
@@ -142,8 +151,9 @@ def design_record(design: DriveDesign, solution) -> dict:
     exact_joule = float(np.sum(weights * np.asarray(drive_model.joule_loss(torque_at_motor, drives))))
     return {
         "ratio": np.asarray(design.ratio).tolist(),
-        "torque_constant_Nm_per_A": float(design.torque_constant[0]),
-        "resistance_ohm": float(design.resistance[0]),
+        "torque_constant_Nm_per_A": np.asarray(design.torque_constant).tolist(),
+        "resistance_ohm": np.asarray(design.resistance).tolist(),
+        "peak_current_A": np.max(np.abs(np.asarray(drive_model.current(torque_at_motor, drives))), axis=0).tolist(),
         "supply_voltage_V": float(design.supply_voltage),
         "total_mass_kg": float(design.total_mass),
         "armature_kgm2": np.asarray(reflected_inertia(design)).tolist(),
@@ -161,31 +171,42 @@ def design_record(design: DriveDesign, solution) -> dict:
 
 # ----------------------------------------------------------------------------- gradients and co-optimisation
 
-#: The co-design's variables per design, in order: log N per joint (H1, K1, H2, K2), then the mass
-#: split (:data:`MASS_SPLIT_NAMES`: fractions).
-DESIGN_VARIABLES = ("log_ratio_H1", "log_ratio_K1", "log_ratio_H2", "log_ratio_K2") + MASS_SPLIT_NAMES
+JOINTS = ("H1", "K1", "H2", "K2")
+#: The co-design's variables per design, in order: log N per joint (H1, K1, H2, K2), log k_t per joint
+#: (the winding, N m/A: :func:`with_torque_constant`), then the mass split (:data:`MASS_SPLIT_NAMES`:
+#: fractions).
+DESIGN_VARIABLES = (tuple(f"log_ratio_{j}" for j in JOINTS) + tuple(f"log_torque_constant_{j}" for j in JOINTS)
+                    + MASS_SPLIT_NAMES)
+#: Their units, in the same order.
+DESIGN_UNITS = ("log of the gear ratio",) * 4 + ("log of k_t in N m/A",) * 4 + ("fraction",) * 2
+#: Where each kind sits in the variables.
+RATIOS, WINDINGS, SPLIT = slice(0, 4), slice(4, 8), slice(8, 10)
 #: A step of the mass split per unit step of log N (Adam moves every variable by about its learning
 #: rate): a step of 0.25 in log N (28 % in N) goes with 0.05 of the structure's mass moved.
 SPLIT_STEP_SCALE = 0.2
 
 
 def design_variables(design: DriveDesign) -> np.ndarray:
-    """The variables (:data:`DESIGN_VARIABLES`) of one design, (6,)."""
-    return np.concatenate([np.log(np.asarray(design.ratio, dtype=float)), np.asarray(mass_split(design), dtype=float)])
+    """The variables (:data:`DESIGN_VARIABLES`) of one design, (10,)."""
+    return np.concatenate([np.log(np.asarray(design.ratio, dtype=float)),
+                           np.log(np.asarray(design.torque_constant, dtype=float)),
+                           np.asarray(mass_split(design), dtype=float)])
 
 
 def with_variables(design: DriveDesign, theta, catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
-    """``design`` at the variables ``theta`` (6,) (traceable): the gear ratios with their gear data
-    (:func:`with_ratio`) and the structure mass split (:func:`with_mass_split`)."""
-    return with_mass_split(with_ratio(design, theta[:4], catalogue), theta[4:])
+    """``design`` at the variables ``theta`` (10,) (traceable): the gear ratios with their gear data
+    (:func:`with_ratio`), the windings (:func:`with_torque_constant`) and the structure mass split
+    (:func:`with_mass_split`)."""
+    return with_mass_split(with_torque_constant(with_ratio(design, theta[RATIOS], catalogue), theta[WINDINGS]),
+                           theta[SPLIT])
 
 
 def design_gradient(solver) -> Callable:
     """d J*/d theta for a batch of converged solutions, by the envelope theorem, theta the variables
-    of :data:`DESIGN_VARIABLES` (log N per joint, the mass split).
+    of :data:`DESIGN_VARIABLES` (log N and log k_t per joint, the mass split).
 
-    Returns ``gradient(designs, theta, speed, power_limit, step_length, solutions) -> (B, 6)`` (designs
-    stacked with :func:`stack`, theta (B, 6); one compiled program for every batch of one size).
+    Returns ``gradient(designs, theta, speed, power_limit, step_length, solutions) -> (B, 10)`` (designs
+    stacked with :func:`stack`, theta (B, 10); one compiled program for every batch of one size).
     """
     catalogue = drive_model.load_catalogue()
 
@@ -208,23 +229,93 @@ def design_gradient(solver) -> Callable:
 
 def ratio_gradient(solver) -> Callable:
     """d J*/d log N per joint for a batch of converged solutions, by the envelope theorem (the first
-    four columns of :func:`design_gradient`, at each design's own mass split).
+    four columns of :func:`design_gradient`, at each design's own windings and mass split).
 
     Returns ``gradient(designs, log_ratio, speed, power_limit, step_length, solutions) -> (B, 4)``.
     """
     full = design_gradient(solver)
 
     def gradient(designs, log_ratio, speed, power_limit, step_length, solutions):
-        split = np.asarray(mass_split(designs))  # each design's own
-        return full(designs, np.concatenate([np.asarray(log_ratio, float), split], axis=1), speed, power_limit,
-                    step_length, solutions)[:, :4]
+        own = np.concatenate([np.log(np.asarray(designs.torque_constant, float)), np.asarray(mass_split(designs))],
+                             axis=1)
+        return full(designs, np.concatenate([np.asarray(log_ratio, float), own], axis=1), speed, power_limit,
+                    step_length, solutions)[:, RATIOS]
     return gradient
+
+
+#: Steps of :func:`gradient_check`'s central differences per variable: 0.01 in log N and in log k_t
+#: (1 %), 0.005 in the split's fractions.
+GRADIENT_CHECK_STEPS = (0.01,) * 8 + (0.005,) * 2
+#: The barrier parameter :func:`gradient_check`'s re-solves start from: near the converged one, so that
+#: a re-solve stays on its design's branch. From the co-design's 1e-3 the barrier first pushes the gait
+#: off its active constraints, and on M4 in 16 knot spans the re-solve of a converged design from its
+#: own optimum then ended on a neighbouring local optimum 0.05 % dearer (measured 2026-12-04), which
+#: spoils differences of 1e-4 J; from 1e-7 it came back to the same optimum to 1e-11.
+GRADIENT_CHECK_MU = 1e-7
+#: Components of the gradient under this fraction of its largest are judged against that fraction of
+#: it (a relative error of a component that is zero, such as a flat winding, means nothing).
+GRADIENT_CHECK_FLOOR = 0.01
+
+
+def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, power_limit, step_length=0.2,
+                   steps=GRADIENT_CHECK_STEPS, batch: int | None = None) -> list[dict]:
+    """The envelope gradient of J* at each design (its converged solution) against central differences
+    of optima re-solved at each variable +- its step (``steps``, one per :data:`DESIGN_VARIABLES`),
+    warm-started from the design's gait from the barrier parameter :data:`GRADIENT_CHECK_MU` (the
+    same compiled program): all 2 V re-solves of all designs in batches of ``batch``
+    (default 2 V; the last padded with copies of a design) so that a caller's compiled batch size
+    serves. ``speed``, ``power_limit``, ``step_length``: numbers or one per design.
+
+    Returns per design a JSON-ready dict: ``envelope`` and ``central_differences`` (J per unit of each
+    variable), ``re_solves_converged`` per variable, ``relative_error`` per variable (|envelope -
+    central| over |central|, floored at :data:`GRADIENT_CHECK_FLOOR` of the largest |central|: a flat
+    variable, such as a winding whose voltage limit is inactive, is judged against the gradient's
+    scale) and ``max_relative_error`` over the variables whose re-solves converged (None if none did).
+    """
+    steps = np.asarray(steps, dtype=float)
+    size = len(DESIGN_VARIABLES)
+    if steps.shape != (size,) or not np.all(steps > 0):
+        raise ValueError(f"steps must be {size} positive numbers, got {steps!r}")
+    count = len(designs)
+    speeds, limits, lengths = (np.repeat(per_design(label, value, count), 2 * size) for label, value in
+                               (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)))
+    theta = np.stack([design_variables(d) for d in designs])
+    offsets = np.concatenate([np.diag(steps), -np.diag(steps)])
+    trial = [with_variables(d, jnp.asarray(t + o)) for d, t in zip(designs, theta) for o in offsets]
+    warm = np.repeat(np.stack([s.x for s in solutions]), 2 * size, axis=0)
+    batch = batch or 2 * size
+    near = solver.using(dataclasses.replace(solver.options, mu_initial=GRADIENT_CHECK_MU))
+    solved = []
+    for first in range(0, len(trial), batch):
+        chunk = slice(first, first + batch)
+        pad = batch - len(trial[chunk])
+        extend = lambda a: np.concatenate([a[chunk], np.repeat(a[chunk][:1], pad, axis=0)])  # noqa: E731
+        solved += solve_designs(near, trial[chunk] + [trial[first]] * pad, extend(speeds), extend(limits),
+                                extend(lengths), x0=extend(warm))[:batch - pad]
+    gradient = design_gradient(solver)(stack(designs), theta, speeds[::2 * size], limits[::2 * size],
+                                       lengths[::2 * size], solutions)
+    results = []
+    for k in range(count):
+        mine = solved[2 * size * k:2 * size * (k + 1)]
+        central = np.array([(mine[i].cost - mine[size + i].cost) / (2 * steps[i]) for i in range(size)])
+        ok = np.array([mine[i].status == nlp.CONVERGED and mine[size + i].status == nlp.CONVERGED
+                       for i in range(size)])
+        error = np.abs(gradient[k] - central) / np.maximum(np.abs(central),
+                                                            GRADIENT_CHECK_FLOOR * np.max(np.abs(central)))
+        results.append({"variables": list(DESIGN_VARIABLES), "envelope": gradient[k].tolist(),
+                        "central_differences": central.tolist(), "steps": steps.tolist(),
+                        "floor_of_the_largest": GRADIENT_CHECK_FLOOR, "mu_initial": GRADIENT_CHECK_MU,
+                        "re_solves_converged": ok.tolist(), "relative_error": error.tolist(),
+                        "max_relative_error": float(np.max(error[ok])) if ok.any() else None})
+    return results
 
 
 @dataclasses.dataclass
 class CoOptimisation:
-    """The path of :func:`co_optimise`: per iteration the ratios (B, 4), the mass splits (B, 2:
-    leg_fraction, thigh_share), Joule energies (B,), statuses, and the final designs and gaits."""
+    """The path of :func:`co_optimise`: per iteration the ratios (B, 4), the torque constants (B, 4,
+    N m/A), the mass splits (B, 2: leg_fraction, thigh_share), Joule energies (B,), statuses; the final
+    designs and gaits, and per design whether it stopped on the projected-gradient rule (``stationary``,
+    as judged at the last gradient taken)."""
 
     ratios: list
     joule: list
@@ -232,6 +323,8 @@ class CoOptimisation:
     designs: list
     solutions: list
     mass_splits: list = dataclasses.field(default_factory=list)
+    torque_constants: list = dataclasses.field(default_factory=list)
+    stationary: list = dataclasses.field(default_factory=list)
 
 
 def _check_bounds(name: str, bounds, unit: str, within=(0.0, np.inf)) -> tuple[np.ndarray, np.ndarray]:
@@ -247,52 +340,77 @@ def _check_bounds(name: str, bounds, unit: str, within=(0.0, np.inf)) -> tuple[n
     return low, high
 
 
-def design_bounds(ratio_bounds=(14.0, 190.0), mass_split_bounds=MASS_SPLIT_BOUNDS) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) of :data:`DESIGN_VARIABLES`, (6,) each: log N within ``ratio_bounds`` (gear ratios),
-    the split within ``mass_split_bounds`` ((low, high) per split variable, fractions). ValueError
-    naming bounds that are not low < high inside (0, inf) and (0, 1)."""
+def design_bounds(ratio_bounds=(14.0, 190.0), mass_split_bounds=MASS_SPLIT_BOUNDS,
+                  torque_constant_bounds=None) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of :data:`DESIGN_VARIABLES`, (10,) each: log N within ``ratio_bounds`` (gear ratios),
+    log k_t within ``torque_constant_bounds`` (N m/A; default the catalogue's windings,
+    :func:`winding_range`), the split within ``mass_split_bounds`` ((low, high) per split variable,
+    fractions). ValueError naming bounds that are not low < high inside (0, inf) and (0, 1)."""
     ratio_low, ratio_high = _check_bounds("ratio_bounds", ratio_bounds, "gear ratio")
+    kt_low, kt_high = _check_bounds("torque_constant_bounds", torque_constant_bounds or winding_range(), "N m/A")
     split_low, split_high = _check_bounds("mass_split_bounds", mass_split_bounds, "fractions", (0.0, 1.0))
-    if ratio_low.shape != () or split_low.shape != (2,):
-        raise ValueError(f"give ratio_bounds as (low, high) and mass_split_bounds as two values each (leg_fraction, "
-                         f"thigh_share), got {ratio_bounds!r} and {mass_split_bounds!r}")
-    return (np.concatenate([np.full(4, np.log(ratio_low)), split_low]),
-            np.concatenate([np.full(4, np.log(ratio_high)), split_high]))
+    if ratio_low.shape != () or kt_low.shape != () or split_low.shape != (2,):
+        raise ValueError(f"give ratio_bounds and torque_constant_bounds as (low, high) and mass_split_bounds as two "
+                         f"values each (leg_fraction, thigh_share), got {ratio_bounds!r}, {torque_constant_bounds!r} "
+                         f"and {mass_split_bounds!r}")
+    return (np.concatenate([np.full(4, np.log(ratio_low)), np.full(4, np.log(kt_low)), split_low]),
+            np.concatenate([np.full(4, np.log(ratio_high)), np.full(4, np.log(kt_high)), split_high]))
+
+
+def projected_gradient(grad, theta, low, high) -> np.ndarray:
+    """The gradient (B, V) with the components that point out of the bounds at a bound, and those of
+    held variables (low = high), set to zero: what a projected step can still use."""
+    grad, theta = np.asarray(grad, float), np.asarray(theta, float)
+    held = low >= high
+    blocked = ((theta <= low) & (grad > 0)) | ((theta >= high) & (grad < 0)) | held
+    return np.where(blocked, 0.0, grad)
 
 
 def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                 iterations: int = 6, max_step: float = 0.25, ratio_bounds=(14.0, 190.0),
                 min_step: float = 0.02, solutions: list | None = None,
-                progress: Callable[[str], None] | None = None, mass_split_bounds=None) -> CoOptimisation:
-    """Gear ratios per joint (and, with ``mass_split_bounds``, the structure's mass split) co-optimised
-    with the gait, all designs of the batch at once.
+                progress: Callable[[str], None] | None = None, mass_split_bounds=None,
+                torque_constant_bounds=None, gradient_tolerance: float = 1e-3) -> CoOptimisation:
+    """Gear ratios per joint (with ``torque_constant_bounds`` the windings, with ``mass_split_bounds``
+    the structure's mass split) co-optimised with the gait, all designs of the batch at once.
 
-    The variables (:data:`DESIGN_VARIABLES`): log N per joint and the mass split (the legs' share of
-    the structure mass, the thighs' share of the legs'; the total kept), the latter only with
-    ``mass_split_bounds`` ((low, high) per split variable, e.g. :data:`MASS_SPLIT_BOUNDS`; else each
-    design keeps its own split). optax's Adam, one optimiser state per design (vmapped), its learning
-    rate the design's step (at first ``max_step`` in log N, :data:`SPLIT_STEP_SCALE` times that in
-    the split's fractions: Adam's first step moves each variable by about its rate, later ones by less
-    where the gradient's sign wavers), the update projected onto the bounds
-    (``optax.projections.projection_box``); the gradient from the envelope theorem at each re-solved
-    (warm-started) optimum (:func:`design_gradient`). A step that raises the Joule energy or loses
-    feasibility is undone (the design keeps its point and optimiser state) and the design's step
-    halved. A design is frozen once its step falls below ``min_step`` (log N) or its gait does not
-    converge; the loop ends early when every design is frozen (the batch keeps its shape, so a frozen
-    design is still solved while others move, but its result is not taken).
-    Gear data follow the ratio smoothly (:func:`with_ratio`); snap the result to the catalogue with
-    :func:`nearest_gearhead` and re-solve to verify. ``solutions``: the designs' gaits if already solved
+    The variables (:data:`DESIGN_VARIABLES`): log N per joint, log k_t per joint (the winding along the
+    family, :func:`with_torque_constant`; only with ``torque_constant_bounds``, (low, high) in N m/A,
+    e.g. :func:`winding_range`) and the mass split (the legs' share of the structure mass, the thighs'
+    share of the legs'; the total kept; only with ``mass_split_bounds``, (low, high) per split
+    variable, e.g. :data:`MASS_SPLIT_BOUNDS`); a variable without bounds keeps each design's own value.
+    optax's Adam, one optimiser state per design (vmapped), its learning rate the design's step (at
+    first ``max_step`` in log N and log k_t, :data:`SPLIT_STEP_SCALE` times that in the split's
+    fractions: Adam's first step moves each variable by about its rate, later ones by less where the
+    gradient's sign wavers), the update projected onto the bounds (``optax.projections.projection_box``);
+    the gradient from the envelope theorem at each re-solved (warm-started) optimum
+    (:func:`design_gradient`). A step that raises the Joule energy or loses feasibility is undone (the
+    design keeps its point and optimiser state) and the design's step halved.
+
+    Stopping rule, per design: a gradient component (times its variable's rate, so per unit of the
+    design's step) of at most ``gradient_tolerance`` times the design's Joule energy counts as zero (no
+    full step of that variable could change the energy by more than that fraction to first order; Adam
+    would otherwise make a full step of a gradient of 1e-9). A design is frozen once its gait does not
+    converge, once its step falls below ``min_step`` (log N), or once its projected gradient
+    (:func:`projected_gradient`) is zero: every component flat, or pointing out of the bounds at a bound.
+    The loop ends early when every design is frozen (the batch keeps its shape, so a frozen design is
+    still solved while others move, but its result is not taken). Gear data follow the ratio smoothly
+    (:func:`with_ratio`); snap the result to the catalogue with :func:`nearest_gearhead` and
+    :func:`nearest_winding` and re-solve to verify. ``solutions``: the designs' gaits if already solved
     (e.g. by :func:`solve_designs`), else they are solved first.
     """
     designs = checks.sequence("designs", designs, DriveDesign, "DriveDesign")
     checks.integer_in("iterations", iterations, 0, 10_000)
     checks.number_in("max_step", max_step, 0.0, 10.0, "(log N)")
     checks.number_in("min_step", min_step, 0.0, 10.0, "(log N)")
+    checks.number_in("gradient_tolerance", gradient_tolerance, 0.0, math.inf, "(relative)")
     theta = np.stack([design_variables(d) for d in designs])
     low, high = (np.tile(b, (len(designs), 1)) for b in
-                 design_bounds(ratio_bounds, MASS_SPLIT_BOUNDS if mass_split_bounds is None else mass_split_bounds))
-    if mass_split_bounds is None:  # each design keeps its own split
-        low[:, 4:], high[:, 4:] = theta[:, 4:], theta[:, 4:]
+                 design_bounds(ratio_bounds, MASS_SPLIT_BOUNDS if mass_split_bounds is None else mass_split_bounds,
+                               torque_constant_bounds))
+    for kind, bounds in ((WINDINGS, torque_constant_bounds), (SPLIT, mass_split_bounds)):
+        if bounds is None:  # each design keeps its own
+            low[:, kind], high[:, kind] = theta[:, kind], theta[:, kind]
     gait_problem.check_problem(*(per_design(label, value, len(designs)) for label, value in
                          (("speed", speed), ("power_limit", power_limit), ("step_length", step_length))))
     say = progress or (lambda message: None)
@@ -300,7 +418,8 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     catalogue = drive_model.load_catalogue()
     base = stack(designs)
     theta = np.clip(theta, low, high)
-    rates = np.array([1.0] * 4 + [SPLIT_STEP_SCALE] * 2)  # each variable's step per unit of the design's
+    rates = np.ones(len(DESIGN_VARIABLES))
+    rates[SPLIT] = SPLIT_STEP_SCALE  # each variable's step per unit of the design's
     step = np.full(len(designs), max_step)
     apply = jax.jit(jax.vmap(lambda d, t: with_variables(d, t, catalogue)))
     adam = optax.inject_hyperparams(optax.adam)(learning_rate=max_step)
@@ -311,20 +430,32 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     elif len(solutions) != len(designs):
         raise ValueError(f"give one solution per design: {len(solutions)} for {len(designs)} designs")
     path = CoOptimisation([], [], [], [], [])
+    stationary = np.zeros(len(designs), bool)
 
     def record(theta_, solutions_):
-        path.ratios.append(np.exp(theta_[:, :4]).tolist())
-        path.mass_splits.append(theta_[:, 4:].tolist())
+        path.ratios.append(np.exp(theta_[:, RATIOS]).tolist())
+        path.torque_constants.append(np.exp(theta_[:, WINDINGS]).tolist())
+        path.mass_splits.append(theta_[:, SPLIT].tolist())
         path.joule.append([s.cost for s in solutions_])
         path.status.append([s.status for s in solutions_])
 
     record(theta, solutions)
     for k in range(iterations):
-        moving = np.array([s.status == nlp.CONVERGED for s in solutions]) & (step >= min_step)
-        if not moving.any():
+        converged = np.array([s.status == nlp.CONVERGED for s in solutions])
+        if not (converged & (step >= min_step)).any():
             say(f"co-design stopped after {k} iterations: every design converged to its step floor or failed")
             break
         grad = gradient(base, theta, speed, power_limit, step_length, solutions)
+        # components under the tolerance are flat (the winding with the voltage limit inactive): zeroed,
+        # since Adam would turn a gradient of 1e-9 into a full step
+        flat = np.abs(grad) * rates <= gradient_tolerance * np.array([abs(s.cost) for s in solutions])[:, None]
+        grad = np.where(flat, 0.0, grad)
+        stationary = converged & ~np.any(projected_gradient(grad, theta, low, high), axis=1)
+        moving = converged & (step >= min_step) & ~stationary
+        if not moving.any():
+            say(f"co-design stopped after {k} iterations: every design stationary (projected gradient at most "
+                f"{gradient_tolerance:g} of its energy), at its step floor or failed")
+            break
         state.hyperparams["learning_rate"] = jnp.asarray(step)
         trial, trial_state = _projected_step(adam, jnp.asarray(grad), state, jnp.asarray(theta), jnp.asarray(rates),
                                              jnp.asarray(low), jnp.asarray(high))
@@ -344,6 +475,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
             f"improved, best Joule energy {best:.4g} J")
     path.designs = unstack(apply(base, jnp.asarray(theta)))
     path.solutions = solutions
+    path.stationary = stationary.tolist()
     return path
 
 

@@ -1,11 +1,13 @@
 """The co-design studies of ``biped-jax codesign``: designs in batches of 16 (one compiled program of the
-batched interior point for every batch), every solve warm-started from the paper design's gait.
+batched interior point for every batch; study (d) one batch of all its starts), every solve
+warm-started from the paper design's gait.
 
 (a) peak joint power and Joule energy per metre against total mass (8-24 kg) at 0.417 and 0.555 m/s,
     with fitted power-law exponents; (b) the highest feasible speed against the gear ratio for the 42 V
     winding; (c) Joule energy per metre against robot mass over catalogue ratios x windings and its
-    Pareto front; (d) gear ratios per joint and the structure's mass split co-optimised with the gait
-    from 16 starts, snapped to the catalogue and re-verified.
+    Pareto front; (d) gear ratios and windings per joint and the structure's mass split co-optimised
+    with the gait for M2 and M4 from 64 starts each, snapped to the catalogue and re-verified, with
+    CMA-ES over the same variables and the same number of solves beside it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import math
 from pathlib import Path
 from typing import Callable
 
+import jax
 import numpy as np
 
 from biped_jax.codesign import problem as codesign
@@ -161,63 +164,236 @@ def pareto(solver: GaitSolver, x_start, say) -> dict:
     return {"designs": records, "pareto": [ok[i] for i in front]}
 
 
-def co_optimisation(solver: GaitSolver, x_start, say, iterations: int) -> dict:
-    """Study (d): gear ratios per joint and the structure's mass split (legs' share, thighs' share of
-    the legs, within :data:`~biped_jax.codesign.drive_design.MASS_SPLIT_BOUNDS`; the total kept) for the
-    42 V winding at M2 (0.555 m/s, 20 W, 38 V) from 16 uniform ratio starts (14:1 to 190:1, the paper's
-    split), co-optimised with the gait, then snapped to the nearest catalogue gearhead per joint (the
-    split kept) and re-solved."""
-    catalogue = drive_model.load_catalogue()
-    starts = [codesign.with_ratio(codesign.catalogue_design(), np.full(4, t), catalogue)
-              for t in np.linspace(np.log(14.0), np.log(190.0), BATCH)]
-    path = codesign.co_optimise(solver, starts, SPEEDS[1], POWER_LIMIT, x0=np.tile(x_start, (BATCH, 1)),
-                                iterations=iterations, progress=say, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS)
-    snapped_names = [tuple(codesign.nearest_gearhead(float(n), catalogue) for n in np.asarray(d.ratio))
-                     for d in path.designs]
-    snapped = [codesign.with_mass_split(codesign.catalogue_design("RE25-42V", names, catalogue=catalogue),
-                                        codesign.mass_split(d))
-               for names, d in zip(snapped_names, path.designs)]
-    say("(d) re-solving the snapped catalogue designs")
-    verified = codesign.solve_designs(solver, snapped, SPEEDS[1], POWER_LIMIT,
-                                      x0=np.stack([s.x for s in path.solutions]), summary=say)
-    split_record = lambda d: dict(zip(codesign.MASS_SPLIT_NAMES, np.asarray(codesign.mass_split(d)).tolist()))  # noqa: E731
-    records = [{"gearheads": list(n), "mass_split": split_record(d), **codesign.design_record(d, s)}
-               for n, d, s in zip(snapped_names, snapped, verified)]
-    ok = [i for i, r in enumerate(records) if r["status"] == nlp.CONVERGED]
-    best = min(ok, key=lambda i: records[i]["joule_energy_J"]) if ok else None
-    return {"variables": {"names": list(codesign.DESIGN_VARIABLES),
-                          "units": ["log of the gear ratio"] * 4 + ["fraction"] * 2,
-                          "mass_split_bounds": [list(b) for b in codesign.MASS_SPLIT_BOUNDS]},
-            "path": {"ratios": path.ratios, "mass_splits": path.mass_splits, "joule_J": path.joule,
-                     "status": path.status},
-            "continuous": [{"ratio": np.asarray(d.ratio).tolist(), "mass_split": split_record(d),
-                            "status": s.status, "joule_energy_J": s.cost}
-                           for d, s in zip(path.designs, path.solutions)],
-            "snapped": records, "best": best}
+@dataclasses.dataclass(frozen=True)
+class DesignProblem:
+    """One problem of study (d): a mass class walking at ``speed`` (m/s) under the power limit
+    ``power_limit`` (W) on the catalogue's 38 V supply."""
+
+    name: str
+    mass_class: str
+    speed: float
+    power_limit: float
 
 
-def reduction_vs_paper(pareto_study: dict, optimisation: dict) -> dict | None:
-    """The best catalogue design of study (d) against the paper's design (RE 25 42 V, GP 32 A 66:1,
-    Table 2's mass split) as study (c) solved it (the same problem: 0.555 m/s, 20 W, 38 V): both Joule
-    energies per step (J) and the reduction, 1 - best / paper; None where either has no converged gait."""
-    paper = [r for r in pareto_study["designs"] if r.get("winding") == "RE25-42V"
-             and r.get("gearhead") == codesign.REFERENCE_GEARHEAD and r["status"] == nlp.CONVERGED]
-    best = optimisation.get("best")
-    if not paper or best is None:
+#: Study (d)'s problems: the paper's M2 and M4 (12 and 18 kg at 0.555 m/s) at the RE 25's 20 W, the
+#: power limit the paper asks about (it found no 20 W gait for the 18 kg robot).
+DESIGN_PROBLEMS = (DesignProblem("M2", "12kg", 0.555, POWER_LIMIT), DesignProblem("M4", "18kg", 0.555, POWER_LIMIT))
+#: Starting designs per problem in study (d) (one batch of all problems' starts).
+STARTS = 64
+#: CMA-ES's initial step in study (d), in the variables scaled to [0, 1] within their bounds.
+CMAES_SIGMA = 0.2
+
+
+def design_starts(paper: codesign.DriveDesign, count: int, low, high, seed: int = 0) -> np.ndarray:
+    """``count`` starting variables (count, V): the paper's design first, then a scrambled Sobol
+    sequence over the bounds (``scipy.stats.qmc``; the same points for every problem with one seed)."""
+    from scipy.stats import qmc
+    unit = qmc.Sobol(d=len(low), scramble=True, seed=seed).random(count)[:count - 1]  # 2^m points: balanced
+    return np.concatenate([np.clip(codesign.design_variables(paper), low, high)[None], low + unit * (high - low)])
+
+
+def snapped_design(continuous: codesign.DriveDesign, mass_class: str,
+                   catalogue: drive_model.Catalogue) -> tuple[tuple[str, ...], tuple[str, ...], codesign.DriveDesign]:
+    """The catalogue design nearest to a continuous one: per joint the nearest gearhead
+    (:func:`~biped_jax.codesign.problem.nearest_gearhead`) and the winding at or below its torque
+    constant (:func:`~biped_jax.codesign.problem.nearest_winding`), its structure split as the
+    continuous design's. Returns (motors, gearheads, design)."""
+    heads = tuple(codesign.nearest_gearhead(float(n), catalogue) for n in np.asarray(continuous.ratio))
+    motors = tuple(codesign.nearest_winding(float(k), catalogue) for k in np.asarray(continuous.torque_constant))
+    design = codesign.catalogue_design(motors, heads, mass_class=mass_class, catalogue=catalogue)
+    return motors, heads, codesign.with_mass_split(design, codesign.mass_split(continuous))
+
+
+def drive_verdicts(motors, heads, solution, supply_voltage: float, catalogue: drive_model.Catalogue) -> list[dict]:
+    """Per joint the catalogue check of its motor and gearhead on the gait
+    (:func:`biped_jax.drives.selection.check_drive`: speed-torque line, thermal, gear and speed limits)
+    and the thermal margin, 1 - RMS motor torque / nominal torque."""
+    from biped_jax.drives import selection
+    from biped_jax.robots.planar_biped import ACTUATED_INDEX
+    trajectory = solution.trajectory
+    t = np.asarray(trajectory.t)
+    speed, torque = np.asarray(trajectory.qd)[:, ACTUATED_INDEX], np.asarray(trajectory.u)
+    verdicts = []
+    for j, (motor, head) in enumerate(zip(motors, heads)):
+        workspace = selection.JointWorkspace(t, speed[:, [j]], torque[:, [j]], solution.step_time_s)
+        motor_data = catalogue.motor(motor)
+        check = selection.check_drive(workspace, motor_data, catalogue.gearhead(head), supply_voltage)
+        verdicts.append({"joint": codesign.JOINTS[j], "motor": motor, "gearhead": head,
+                         "feasible": check["feasible"], "reason": check["reason"],
+                         "thermal_margin": 1.0 - check["rms_motor_torque_mNm"] * drive_model.MNM
+                         / motor_data.nominal_torque,
+                         "min_voltage_margin_V": check["min_voltage_margin_V"]})
+    return verdicts
+
+
+def _per_problem(problems, count: int, values) -> np.ndarray:
+    return np.repeat(np.asarray([values(p) for p in problems], dtype=float), count)
+
+
+def cmaes_baseline(solver, papers, problems, low, high, x_warm, penalties, generations: int, population: int,
+                   say, seed: int = 1) -> dict:
+    """CMA-ES (the ``cma`` package) per problem over the same variables and bounds (scaled to [0, 1]),
+    from the paper's design with step :data:`CMAES_SIGMA`, ``population`` designs a generation, every
+    generation's populations of all problems solved as one batch warm-started from the paper designs'
+    gaits (``x_warm``, one per problem); a design whose gait does not converge scores its problem's
+    ``penalties`` (J). Returns per problem the best converged energy after each generation and the
+    solves."""
+    import cma
+    strategies = [cma.CMAEvolutionStrategy((codesign.design_variables(paper) - low) / (high - low), CMAES_SIGMA,
+                                           {"bounds": [0.0, 1.0], "seed": seed, "popsize": population,
+                                            "verbose": -9})
+                  for paper in papers]
+    apply = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
+    best = [[] for _ in problems]
+    best_variables = [None] * len(problems)
+    for generation in range(generations):
+        units = [np.asarray(strategy.ask()) for strategy in strategies]
+        designs = [d for paper, unit in zip(papers, units)
+                   for d in codesign.unstack(apply(paper, low + unit * (high - low)))]
+        solutions = codesign.solve_designs(solver, designs, _per_problem(problems, population, lambda p: p.speed),
+                                           _per_problem(problems, population, lambda p: p.power_limit),
+                                           x0=np.repeat(x_warm, population, axis=0), summary=say)
+        for i, (strategy, unit) in enumerate(zip(strategies, units)):
+            mine = solutions[i * population:(i + 1) * population]
+            scores = [s.cost if _converged(s) else penalties[i] for s in mine]
+            strategy.tell(list(unit), scores)
+            current, k = (best[i][-1] if best[i] else math.inf), int(np.argmin(scores))
+            if _converged(mine[k]) and scores[k] < current:
+                current, best_variables[i] = scores[k], (low + unit[k] * (high - low)).tolist()
+            best[i].append(current)
+        say(f"(d) CMA-ES generation {generation + 1}/{generations}: best "
+            + ", ".join(f"{p.name} {b[-1]:.4g} J" for p, b in zip(problems, best)))
+    return {"method": "CMA-ES (cma), the same variables and bounds", "population": population,
+            "sigma_unit": CMAES_SIGMA,
+            "per_problem": {p.name: {"solves": [population * (g + 1) for g in range(generations)],
+                                     "best_energy_J": [None if not math.isfinite(e) else e for e in b],
+                                     "best_variables": v}
+                            for p, b, v in zip(problems, best, best_variables)}}
+
+
+def energy_reduction(paper: dict, best: dict | None) -> dict | None:
+    """The best catalogue design's Joule energy per step (J) against the paper design's (both
+    :func:`~biped_jax.codesign.problem.design_record`s of one problem) and the reduction, 1 - best /
+    paper; None without a best design, the reason where the paper's design has no converged gait."""
+    if best is None:
         return None
-    paper_energy, best_energy = paper[0]["joule_energy_J"], optimisation["snapped"][best]["joule_energy_J"]
-    return {"paper_joule_energy_J": paper_energy, "best_joule_energy_J": best_energy,
-            "reduction": 1.0 - best_energy / paper_energy}
+    if paper["status"] != nlp.CONVERGED:
+        return {"paper_joule_energy_J": None, "best_joule_energy_J": best["joule_energy_J"], "reduction": None,
+                "reason": f"the paper's design has no converged gait ({paper['status']})"}
+    return {"paper_joule_energy_J": paper["joule_energy_J"], "best_joule_energy_J": best["joule_energy_J"],
+            "reduction": 1.0 - best["joule_energy_J"] / paper["joule_energy_J"]}
+
+
+def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: int = STARTS,
+                    problems=DESIGN_PROBLEMS, baseline: bool = True) -> dict:
+    """Study (d): per problem (:data:`DESIGN_PROBLEMS`) the gear ratio and the winding per joint and the
+    structure's mass split co-optimised with the gait (:func:`~biped_jax.codesign.problem.co_optimise`,
+    the variables within :func:`~biped_jax.codesign.problem.design_bounds`: ratios 14-190:1, the
+    catalogue's windings, the split within ``MASS_SPLIT_BOUNDS``) from ``starts`` designs per problem
+    (:func:`design_starts`: the paper's design and a Sobol sequence), all problems' designs in one
+    batch warm-started from the paper design's gait (``x_start``, M2's; the paper design of every
+    problem is solved first, in the batch size of the other studies). Then each design snapped to the
+    catalogue (:func:`snapped_design`) and re-solved; per problem the best snapped design with its
+    drive verdicts, its reduction against the paper design, and at its continuous design the gradient
+    against central differences of re-solved optima; with ``baseline`` CMA-ES over the same variables
+    (:func:`cmaes_baseline`), as many generations of ``starts`` designs as the gradient method had
+    batch solves."""
+    catalogue = drive_model.load_catalogue()
+    low, high = codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue))
+    papers = [codesign.catalogue_design(mass_class=p.mass_class, catalogue=catalogue) for p in problems]
+    say(f"(d) the paper's design of {', '.join(p.name for p in problems)}")
+    padded = papers + [papers[0]] * (BATCH - len(papers))
+    paper_solutions = codesign.solve_designs(
+        solver, padded, [p.speed for p in problems] + [problems[0].speed] * (BATCH - len(problems)),
+        [p.power_limit for p in problems] + [problems[0].power_limit] * (BATCH - len(problems)),
+        x0=np.tile(x_start, (BATCH, 1)), summary=say)[:len(problems)]
+    x_warm = np.stack([s.x if _converged(s) else x_start for s in paper_solutions])
+    theta0 = [design_starts(paper, starts, low, high) for paper in papers]
+    apply = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
+    designs = [d for paper, theta in zip(papers, theta0) for d in codesign.unstack(apply(paper, theta))]
+    speeds = _per_problem(problems, starts, lambda p: p.speed)
+    limits = _per_problem(problems, starts, lambda p: p.power_limit)
+    say(f"(d) {starts} starts x {len(problems)} problems in one batch")
+    path = codesign.co_optimise(solver, designs, speeds, limits, x0=np.repeat(x_warm, starts, axis=0),
+                                iterations=iterations, progress=say, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS,
+                                torque_constant_bounds=codesign.winding_range(catalogue))
+    snapped = [snapped_design(d, problems[b // starts].mass_class, catalogue) for b, d in enumerate(path.designs)]
+    say("(d) re-solving the snapped catalogue designs")
+    verified = codesign.solve_designs(solver, [d for _, _, d in snapped], speeds, limits,
+                                      x0=np.stack([s.x for s in path.solutions]), summary=say)
+    records = []
+    for b, ((motors, heads, design), solution) in enumerate(zip(snapped, verified)):
+        split = dict(zip(codesign.MASS_SPLIT_NAMES, np.asarray(codesign.mass_split(design)).tolist()))
+        records.append({"problem": problems[b // starts].name, "motors": list(motors), "gearheads": list(heads),
+                        "mass_split": split, **codesign.design_record(design, solution)})
+    gradient_solves = starts * len(path.joule)  # the first solve and one per iteration run
+    per_problem = {}
+    checks_at = []
+    for i, problem in enumerate(problems):
+        mine = range(i * starts, (i + 1) * starts)
+        ok = [b for b in mine if records[b]["status"] == nlp.CONVERGED]
+        best = min(ok, key=lambda b: records[b]["joule_energy_J"]) if ok else None
+        paper = codesign.design_record(papers[i], paper_solutions[i])
+        entry = {"problem": dataclasses.asdict(problem), "best": best, "converged_snapped": len(ok),
+                 "paper_design": {"motor": codesign.REFERENCE_MOTOR, "gearhead": codesign.REFERENCE_GEARHEAD, **paper}}
+        if best is not None:
+            entry["best_design"] = {**records[best], "variables": dict(zip(
+                codesign.DESIGN_VARIABLES, codesign.design_variables(path.designs[best]).tolist())),
+                "drive_verdicts": drive_verdicts(records[best]["motors"], records[best]["gearheads"], verified[best],
+                                                 catalogue.supply_voltage, catalogue)}
+            checks_at.append((i, best))
+        entry["energy_reduction_vs_paper"] = energy_reduction(paper, None if best is None else records[best])
+        per_problem[problem.name] = entry
+    say("(d) the gradient at each problem's best design against re-solved optima")
+    checks_made = codesign.gradient_check(
+        solver, [path.designs[b] for _, b in checks_at], [path.solutions[b] for _, b in checks_at],
+        [problems[i].speed for i, _ in checks_at], [problems[i].power_limit for i, _ in checks_at],
+        batch=BATCH) if checks_at else []
+    for (i, _), check in zip(checks_at, checks_made):
+        per_problem[problems[i].name]["gradient_check"] = check
+    errors = [c["max_relative_error"] for c in checks_made if c["max_relative_error"] is not None]
+    result = {
+        "variables": {"names": list(codesign.DESIGN_VARIABLES), "units": list(codesign.DESIGN_UNITS),
+                      "low": low.tolist(), "high": high.tolist(),
+                      "bounds": {"ratio": [14.0, 190.0],
+                                 "torque_constant_Nm_per_A": list(codesign.winding_range(catalogue)),
+                                 "mass_split": [list(b) for b in codesign.MASS_SPLIT_BOUNDS]}},
+        "problems": [dataclasses.asdict(p) for p in problems], "starts_per_problem": starts,
+        "designs": [{"problem": records[b]["problem"], "start": theta.tolist(),
+                     "final": codesign.design_variables(d).tolist(), "status": s.status,
+                     "joule_energy_J": s.cost, "stationary": path.stationary[b] if path.stationary else False}
+                    for b, (theta, d, s) in enumerate(zip(np.concatenate(theta0), path.designs, path.solutions))],
+        "path": {"ratios": path.ratios, "torque_constants_Nm_per_A": path.torque_constants,
+                 "mass_splits": path.mass_splits, "joule_J": path.joule, "status": path.status},
+        "snapped": records, "per_problem": per_problem,
+        "best": {name: entry["best"] for name, entry in per_problem.items()},
+        "energy_reduction_vs_paper": {name: entry["energy_reduction_vs_paper"] for name, entry in per_problem.items()},
+        "gradient_solves": gradient_solves,
+        "gradient_check_max_rel_error": max(errors) if errors else None,
+    }
+    if baseline:
+        say("(d) CMA-ES over the same variables, the same number of solves")
+        result["baseline"] = cmaes_baseline(solver, papers, problems, low, high, x_warm,
+                                            [10.0 * s.cost for s in paper_solutions], len(path.joule), starts, say)
+    return result
+
+
+#: ``biped-jax codesign --quick``: study (d) alone, 8 starts per problem, 2 iterations, every file stamped.
+QUICK_STARTS, QUICK_ITERATIONS = 8, 2
+QUICK_STAMP = ("QUICK LOOK (biped-jax codesign --quick): study (d) alone, 8 starts per problem, 2 iterations; "
+               "not the study's result")
 
 
 def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.GaitSettings(dynamics="chain"),
-                 iterations: int = 5,
-                 progress: Callable[[str], None] | None = None, resume: bool = False) -> dict:
-    """All four studies; writes codesign.json and codesign_{mass_scaling,speed,pareto,optimisation}.png.
-    The batched interior point solves every batch: :data:`IP_OPTIONS` for the reference gait,
-    :data:`IP_WARM_OPTIONS` otherwise; single-shot settings are shot in a segment per knot span.
-    Each finished study is kept in ``out/stages`` (:func:`biped_jax.report.outputs.stage`); ``resume``
-    takes those written with the same settings instead of solving them again."""
+                 iterations: int = 5, progress: Callable[[str], None] | None = None, resume: bool = False,
+                 starts: int = STARTS, optimisation_only: bool = False) -> dict:
+    """The four studies (``optimisation_only``: study (d) alone); writes codesign.json and
+    codesign_{pareto,mass_scaling,speed,optimisation}.png. The batched interior point solves every
+    batch: :data:`IP_OPTIONS` for the reference gait, :data:`IP_WARM_OPTIONS` otherwise; single-shot
+    settings are shot in a segment per knot span. Study (d) runs ``starts`` designs per problem for
+    ``iterations`` iterations. Each finished study is kept in ``out/stages``
+    (:func:`biped_jax.report.outputs.stage`); ``resume`` takes those written with the same settings
+    instead of solving them again."""
     from biped_jax.codesign import plots as codesign_plots
 
     say = progress or (lambda message: None)
@@ -228,24 +404,27 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
     solver = GaitSolver(settings, options)
     results = {"settings": {"spans": settings.spans, "substeps": settings.substeps, "steps": settings.steps,
                             "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,
-                            "dynamics": settings.dynamics, "solver": "interior point"}}
+                            "dynamics": settings.dynamics, "solver": "interior point", "starts_per_problem": starts,
+                            "iterations": iterations}}
     save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731
-    key = {"settings": dataclasses.asdict(settings), "iterations": iterations, "options": dataclasses.asdict(options)}
-    kept = lambda name, compute: outputs.stage(out, f"codesign_{name}", key, compute, resume, say)  # noqa: E731
+    key = {"settings": dataclasses.asdict(settings), "options": dataclasses.asdict(options)}
+    kept = lambda name, compute, **more: outputs.stage(out, f"codesign_{name}", {**key, **more}, compute,  # noqa: E731
+                                                       resume, say)
     say("compiling the gait problem; the paper's design from the heuristic start")
     x_start = kept("reference", lambda: reference_gait(solver, say))
-    results["pareto"] = kept("pareto", lambda: pareto(solver, x_start, say))
-    save()
-    codesign_plots.plot_pareto(results["pareto"], out / "codesign_pareto.png")
-    results["mass_scaling"] = kept("mass_scaling", lambda: mass_scaling(solver, say))
-    save()
-    codesign_plots.plot_mass_scaling(results["mass_scaling"], out / "codesign_mass_scaling.png")
-    results["speed_limits"] = kept("speed_limits", lambda: speed_limits(solver, x_start, say))
-    save()
-    codesign_plots.plot_speed_limits(results["speed_limits"], out / "codesign_speed.png")
-    results["co_optimisation"] = kept("co_optimisation", lambda: co_optimisation(solver, x_start, say, iterations))
-    results["co_optimisation"]["energy_reduction_vs_paper"] = reduction_vs_paper(results["pareto"],
-                                                                                 results["co_optimisation"])
+    if not optimisation_only:
+        results["pareto"] = kept("pareto", lambda: pareto(solver, x_start, say))
+        save()
+        codesign_plots.plot_pareto(results["pareto"], out / "codesign_pareto.png")
+        results["mass_scaling"] = kept("mass_scaling", lambda: mass_scaling(solver, say))
+        save()
+        codesign_plots.plot_mass_scaling(results["mass_scaling"], out / "codesign_mass_scaling.png")
+        results["speed_limits"] = kept("speed_limits", lambda: speed_limits(solver, x_start, say))
+        save()
+        codesign_plots.plot_speed_limits(results["speed_limits"], out / "codesign_speed.png")
+    results["co_optimisation"] = kept("co_optimisation", lambda: co_optimisation(solver, x_start, say, iterations,
+                                                                             starts),
+                                      iterations=iterations, starts=starts)
     save()
     codesign_plots.plot_optimisation(results["co_optimisation"], out / "codesign_optimisation.png")
     return results
