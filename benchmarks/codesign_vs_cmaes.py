@@ -3,13 +3,14 @@ and bounds, counted in gait solves, in the same run.
 
 The problem: M2 (0.555 m/s, 20 W, 38 V) on the paper's RE 25 42 V drive; the variables
 (``codesign.DESIGN_VARIABLES``): log N per joint within 14-190:1, log k_t per joint within the
-catalogue's windings (``codesign.winding_range()``) and the structure's mass split within
-``codesign.MASS_SPLIT_BOUNDS``; the objective the converged gait's Joule energy per step (the step
-length is fixed, so per metre is the same ranking).
+catalogue's windings (``codesign.winding_range()``), the structure's mass split within
+``codesign.MASS_SPLIT_BOUNDS`` and the knee drives' place from the knee (0) to the hip (1); the
+objective the converged gait's Joule energy per step (the step length is fixed, so per metre is the
+same ranking).
 
 - **gradient**: ``codesign.co_optimise`` from the paper's design (66:1, Table 2's split): optax's Adam on
   the envelope-theorem gradient, one warm-started solve per iteration;
-- **CMA-ES** (the ``cma`` package, in the ``bench`` extra): the variables scaled to [0, 1] within their
+- **CMA-ES** (the ``cma`` package): the variables scaled to [0, 1] within their
   bounds, started at the paper's design with step 0.2, every generation's population solved as one
   batch warm-started from the paper design's gait; a design whose gait does not converge scores ten
   times the paper's energy.
@@ -44,14 +45,15 @@ def gradient_method(solver, paper, reference, iterations: int) -> dict:
     path = codesign.co_optimise(solver, [paper], SPEED, POWER_LIMIT, x0=reference.x[None], iterations=iterations,
                                 ratio_bounds=RATIO_BOUNDS, solutions=[reference],
                                 mass_split_bounds=codesign.MASS_SPLIT_BOUNDS,
-                                torque_constant_bounds=codesign.winding_range(),
+                                torque_constant_bounds=codesign.winding_range(), drive_offset_bounds=(0.0, 1.0),
                                 progress=lambda message: print("  gradient:", message, flush=True))
     seconds = time.perf_counter() - started
     energies = [row[0] for row in path.joule]   # after 0, 1, ... solves beyond the paper design's
     return {"method": "gradient (optax Adam, envelope theorem)", "solves": list(range(1, len(energies) + 1)),
             "best_energy_J": best_so_far(energies), "seconds": seconds, "final_design": path.designs[0],
             "final_solution": path.solutions[0], "ratios": path.ratios[-1][0],
-            "torque_constants_Nm_per_A": path.torque_constants[-1][0], "mass_split": path.mass_splits[-1][0]}
+            "torque_constants_Nm_per_A": path.torque_constants[-1][0], "mass_split": path.mass_splits[-1][0],
+            "knee_drive_offset": path.knee_drive_offsets[-1][0]}
 
 
 def cmaes(solver, paper, reference, generations: int, seed: int) -> dict:

@@ -267,7 +267,7 @@ def _api_rows():
         ("co-design: three motors", lambda: codesign.catalogue_design(("RE25-42V",) * 3), "give one motor or four"),
         ("co-design: gradient check steps", lambda: codesign.gradient_check(None, [reference], [None], 0.5, 20.0,
                                                                            steps=(0.01,) * 9),
-         "steps must be 10 positive numbers"),
+         "steps must be 11 positive numbers"),
         ("co-design: speeds for another batch", lambda: codesign.solve_designs(None, [reference] * 3, [0.5, 0.6],
                                                                                 20.0), "one value per design (3)"),
         ("co-design: names for another batch", lambda: codesign.solve_designs(None, [reference], 0.5, 20.0,

@@ -157,18 +157,20 @@ def test_the_projected_step_keeps_every_design_within_its_bounds():
     by the rate, the split by SPLIT_STEP_SCALE times it); with a large one it stops on its bound; a
     variable with low = high (the second design's own windings and split, held) never moves."""
     import optax
-    theta = jnp.asarray(np.stack([codesign.design_variables(codesign.catalogue_design())] * 2))
+    theta = np.stack([codesign.design_variables(codesign.catalogue_design())] * 2)
+    theta[0, codesign.PLACEMENT] = 0.5  # inside its bounds (a catalogue design's drives sit at the knees)
+    theta = jnp.asarray(theta)
     low, high = (np.tile(b, (2, 1)) for b in codesign.design_bounds())
-    held = np.r_[codesign.WINDINGS.start:codesign.SPLIT.stop]
+    held = np.r_[codesign.WINDINGS.start:codesign.PLACEMENT.stop]
     low[1, held], high[1, held] = theta[1, held], theta[1, held]
     adam = optax.inject_hyperparams(optax.adam)(learning_rate=0.25)
-    rates = np.ones(10)
+    rates = np.ones(11)
     rates[codesign.SPLIT] = codesign.SPLIT_STEP_SCALE
     for rate in (0.1, 4.0):
         state = jax.vmap(adam.init)(theta)
         state.hyperparams["learning_rate"] = jnp.full(2, rate)
         for sign in (1.0, -1.0):
-            trial, _ = codesign._projected_step(adam, jnp.full((2, 10), 1e6 * sign), state, theta, jnp.asarray(rates),
+            trial, _ = codesign._projected_step(adam, jnp.full((2, 11), 1e6 * sign), state, theta, jnp.asarray(rates),
                                                 jnp.asarray(low), jnp.asarray(high))
             trial = np.asarray(trial)
             assert np.all(trial >= low) and np.all(trial <= high)
@@ -178,7 +180,7 @@ def test_the_projected_step_keeps_every_design_within_its_bounds():
             else:  # on the bound the gradient points away from
                 np.testing.assert_array_equal(trial[0], low[0] if sign > 0 else high[0])
     # what a projected step can still use: nothing of a held variable, nothing pointing out at a bound
-    grad = np.array([[1.0, -1.0, 1.0, -1.0] * 2 + [1.0, 1.0]] * 2)
+    grad = np.array([[1.0, -1.0, 1.0, -1.0] * 2 + [1.0, 1.0, -1.0]] * 2)
     at_bounds = np.where(grad > 0, low, high)  # every variable on the bound its gradient points out of
     assert not np.any(codesign.projected_gradient(grad, at_bounds, low, high))
     free = codesign.projected_gradient(grad, 0.5 * (low + high), low, high)
@@ -265,17 +267,21 @@ def test_the_winding_matters_only_where_the_voltage_limit_binds(design_solver, r
 
 @pytest.mark.slow
 def test_the_gradient_check_judges_every_variable_on_its_own(design_solver, ratio_batch):
-    """codesign.gradient_check at the centre design: each of the ten variables +- its step re-solved
+    """codesign.gradient_check at the centre design: each of the eleven variables +- its step re-solved
     (in the batch size of 4 the module already compiled), every component within 0.5 % of its central
-    difference (flat windings against 1 % of the largest component)."""
+    difference (flat windings against 1 % of the largest component; the knee drives, at the knees,
+    one-sided up the thigh). Moving the knee drives up toward the hips lowers the energy (the swing
+    leg's inertia about the hip falls)."""
     designs, _, solutions = ratio_batch
     check, = codesign.gradient_check(design_solver, [designs[1]], [solutions[1]], SPEED, POWER_LIMIT, batch=4)
     assert all(check["re_solves_converged"])
-    assert check["max_relative_error"] < 5e-3, check
+    errors = "; ".join(f"{v} {e:.2g}" for v, e in zip(check["variables"], check["relative_error"]))
+    assert check["max_relative_error"] < 5e-3, errors
     envelope, central = np.array(check["envelope"]), np.array(check["central_differences"])
     assert np.max(np.abs(envelope[codesign.WINDINGS])) < 1e-6 * np.max(np.abs(envelope))
     assert np.max(np.abs(central[codesign.WINDINGS])) < 1e-3 * np.max(np.abs(central))
-    with pytest.raises(ValueError, match="steps must be 10 positive numbers"):
+    assert envelope[codesign.PLACEMENT][0] < -0.01 * np.max(np.abs(envelope))
+    with pytest.raises(ValueError, match="steps must be 11 positive numbers"):
         codesign.gradient_check(design_solver, [designs[1]], [solutions[1]], SPEED, POWER_LIMIT, steps=(0.01,) * 6)
 
 
@@ -365,7 +371,7 @@ def test_the_study_starts_from_the_paper_design_and_snaps_each_joint_to_the_cata
     paper = codesign.catalogue_design(mass_class="18kg", catalogue=catalogue)
     low, high = codesign.design_bounds()
     starts = codesign_study.design_starts(paper, 8, low, high)
-    assert starts.shape == (8, 10) and np.all(starts >= low) and np.all(starts <= high)
+    assert starts.shape == (8, 11) and np.all(starts >= low) and np.all(starts <= high)
     np.testing.assert_allclose(starts[0], codesign.design_variables(paper), rtol=1e-14)
     assert len({tuple(row) for row in starts}) == 8
     np.testing.assert_array_equal(codesign_study.design_starts(paper, 8, low, high), starts)  # seeded
@@ -373,6 +379,7 @@ def test_the_study_starts_from_the_paper_design_and_snaps_each_joint_to_the_cata
     theta[codesign.RATIOS] = np.log([180.0, 60.0, 20.0, 100.0])
     theta[codesign.WINDINGS] = np.log([0.040, 0.0409, 0.030, 0.0234])
     theta[codesign.SPLIT] = [0.3, 0.6]
+    theta[codesign.PLACEMENT] = 0.8
     continuous = codesign.with_variables(paper, jnp.asarray(theta))
     motors, heads, design = codesign_study.snapped_design(continuous, "18kg", catalogue)
     assert motors == ("RE25-118754", "RE25-42V", "RE25-30V", "RE25-118752")
@@ -381,5 +388,6 @@ def test_the_study_starts_from_the_paper_design_and_snaps_each_joint_to_the_cata
     np.testing.assert_allclose(design.resistance, [catalogue.motor(m).resistance for m in motors])
     np.testing.assert_allclose(design.ratio, [catalogue.gearhead(h).ratio for h in heads])
     np.testing.assert_allclose(codesign.mass_split(design), [0.3, 0.6], rtol=1e-12)
+    np.testing.assert_allclose(design.drive_offset, [0.0, 0.8, 0.0, 0.8])
     with pytest.raises(ValueError, match="give one motor or four"):
         codesign.catalogue_design(("RE25-42V",) * 3)

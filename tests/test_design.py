@@ -83,16 +83,19 @@ def test_changing_the_design_does_not_recompile_and_vmap_runs_many_designs(biped
     np.testing.assert_allclose(batched[1], end_heavy, rtol=1e-12)
 
 
-def test_drive_masses_match_point_masses_compiled_by_mujoco():
-    """Drives as arrays (point masses at the joints on their mounting links) against MuJoCo C compiling
-    the file with a welded point-mass body at each joint: same accelerations, subtree masses and
-    total mass. Hips sit at the torso's origin; the pinned chain runs foot -> knee1 -> hip, so knee1
-    is thigh1's origin, and knee2 lies one thigh length below thigh2's origin."""
+@pytest.mark.parametrize("knee_offsets", [(0.0, 0.0), (0.4, 0.7)])
+def test_drive_masses_match_point_masses_compiled_by_mujoco(knee_offsets):
+    """Drives as arrays (point masses at the joints on their mounting links, the knee drives moved
+    ``knee_offsets`` of the way up their thighs to the hips) against MuJoCo C compiling the file with a
+    welded point-mass body at each drive: same accelerations, subtree masses and total mass. Hips sit
+    at the torso's origin; the pinned chain runs foot -> knee1 -> hip, so knee1 is thigh1's origin and
+    hip1 one thigh length above it, and knee2 lies one thigh length below thigh2's origin (hip2)."""
     spec = PlanarBipedSpec(torso_mass=9.0, thigh_mass=1.5, shank_mass=0.8)
     drive_mass = np.array([0.3, 0.25, 0.35, 0.2])  # hip1, knee1, hip2, knee2
     mjspec = mujoco.MjSpec.from_string(planar_pinned_xml(spec, "drives"))
-    mounts = [("torso", [0, 0, 0]), ("thigh1", [0, 0, 0]), ("torso", [0, 0, 0]),
-              ("thigh2", [0, 0, -spec.thigh_length])]
+    up1, up2 = knee_offsets
+    mounts = [("torso", [0, 0, 0]), ("thigh1", [0, 0, up1 * spec.thigh_length]), ("torso", [0, 0, 0]),
+              ("thigh2", [0, 0, -(1 - up2) * spec.thigh_length])]
     for (body, position), mass in zip(mounts, drive_mass):
         mjspec.body(body).add_body(pos=position, ipos=[0, 0, 0], mass=mass, inertia=[1e-12] * 3)
     fresh = mjspec.compile()
@@ -102,7 +105,8 @@ def test_drive_masses_match_point_masses_compiled_by_mujoco():
 
     layout = hybrid_step.planar_layouts()[0]
     design = design_lib.Design(link_mass=jnp.array([9.0, 1.5, 0.8, 1.5, 0.8]), joint_armature=jnp.zeros(4),
-                               joint_damping=jnp.zeros(4), drive_mass=jnp.asarray(drive_mass))
+                               joint_damping=jnp.zeros(4), drive_mass=jnp.asarray(drive_mass),
+                               drive_offset=jnp.array([0.0, up1, 0.0, up2]))
     model = design_lib.apply_design(robots.load_mjx_model("biped5_pinned_12kg"), layout,
                                     design_lib.check_design(design, layout))
     np.testing.assert_allclose(jax.jit(hybrid_step.stance_acceleration)(model, Q, QD, U), data.qacc, rtol=1e-9)
@@ -116,6 +120,8 @@ def test_drive_masses_match_point_masses_compiled_by_mujoco():
     ("joint_armature", -jnp.ones(4), "joint_armature must be non-negative"),
     ("joint_damping", jnp.full(4, jnp.nan), "joint_damping must be finite"),
     ("drive_mass", jnp.array([0.3, -0.1, 0.3, 0.3]), "drive_mass must be non-negative"),
+    ("drive_offset", jnp.array([0.0, 1.5, 0.0, 0.0]), r"drive_offset must be within \[0, 1\]"),
+    ("drive_offset", jnp.zeros(3), r"drive_offset must have shape \(4,\)"),
 ])
 def test_bad_designs_are_rejected_naming_the_value(field, value, message):
     import dataclasses

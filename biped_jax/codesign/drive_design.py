@@ -3,8 +3,9 @@ actuated joint (H1, K1, H2, K2) a gear of ratio N and a motor winding, and the s
 link. It maps to the gait problem (:func:`design_gait_model`) as
 
 - reflected inertia N^2 (J_rotor + J_gear) as the joint's armature in the MJX model;
-- motor and gear mass as a point mass at the joint on the link carrying the drive (both hip drives in
-  the torso, each knee drive at the knee end of its thigh; ``biped_jax.robots.design``);
+- motor and gear mass as a point mass on the link carrying the drive (both hip drives in the torso,
+  each knee drive on its thigh, at the knee or moved up toward the hip by ``drive_offset``;
+  ``biped_jax.robots.design``);
 - the objective: the Joule energy integral of R i^2 with i = T_m / k_t and T_m the motor torque
   through the gear (eq. 2.3, efficiency both ways); for identical drives it is a constant times the
   paper's integral of u^T u;
@@ -49,6 +50,8 @@ class DriveDesign:
         motor_mass: kg, (4,).
       structure_mass: the links without drives (torso, thigh1, shank1, thigh2, shank2), kg, (5,).
       supply_voltage: V_s, V, ().
+      drive_offset: where along its link each drive sits, (4,), 0 at its joint, 1 at the hip (the knee
+        drives up their thighs; :class:`~biped_jax.robots.design.Design`); the hip drives stay.
     """
 
     ratio: jax.Array
@@ -61,6 +64,7 @@ class DriveDesign:
     motor_mass: jax.Array
     structure_mass: jax.Array
     supply_voltage: jax.Array
+    drive_offset: jax.Array
 
     @property
     def total_mass(self) -> jax.Array:
@@ -79,7 +83,7 @@ def robot_design(design: DriveDesign) -> Design:
     A concrete design is checked (ValueError naming a non-positive or non-finite mass)."""
     result = Design(link_mass=design.structure_mass, joint_armature=reflected_inertia(design),
                     joint_damping=jnp.zeros_like(design.ratio),
-                    drive_mass=design.motor_mass + design.gear_mass)
+                    drive_mass=design.motor_mass + design.gear_mass, drive_offset=design.drive_offset)
     if checks.concrete(design):
         check_design(result, hybrid_step.planar_layouts()[0])
     return result
@@ -157,7 +161,7 @@ def catalogue_design(motor: str | tuple[str, ...] = REFERENCE_MOTOR,
                        torque_constant=per_joint(motors, "torque_constant"),
                        resistance=per_joint(motors, "resistance"), rotor_inertia=per_joint(motors, "rotor_inertia"),
                        motor_mass=per_joint(motors, "mass"), structure_mass=jnp.asarray(structure),
-                       supply_voltage=jnp.asarray(float(voltage)))
+                       supply_voltage=jnp.asarray(float(voltage)), drive_offset=jnp.zeros(4))
 
 
 def _stage_table(catalogue: drive_model.Catalogue):
@@ -254,6 +258,21 @@ def nearest_winding(torque_constant: float, catalogue: drive_model.Catalogue | N
     motors = sorted(catalogue.motors.values(), key=lambda m: m.torque_constant)
     below = [m for m in motors if m.torque_constant <= torque_constant * (1 + 1e-6)]
     return (below[-1] if below else motors[0]).part
+
+
+def knee_drive_offset(design: DriveDesign) -> jax.Array:
+    """How far up its thigh each knee drive sits, both knees averaged, (): 0 at the knee, 1 at the hip."""
+    return 0.5 * (design.drive_offset[..., 1] + design.drive_offset[..., 3])
+
+
+def with_knee_drive_offset(design: DriveDesign, offset) -> DriveDesign:
+    """``design`` with both knee drives ``offset`` (a fraction in [0, 1], traceable) of the way up their
+    thighs to the hips, a transmission carrying the torque to the knee (its mass, friction and
+    compliance not modelled: the drive's own mass moves, its reflected inertia stays the knee's). The
+    hip drives stay at the hips."""
+    offset = jnp.asarray(offset, float)
+    zero = jnp.zeros_like(offset)
+    return dataclasses.replace(design, drive_offset=jnp.stack([zero, offset, zero, offset], axis=-1))
 
 
 def nearest_gearhead(ratio: float, catalogue: drive_model.Catalogue | None = None) -> str:

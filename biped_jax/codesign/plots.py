@@ -103,10 +103,10 @@ def best_by_iteration(study: dict, problem: str) -> np.ndarray:
 
 def plot_optimisation(study: dict, path: Path) -> None:
     """Study (d): per problem the best converged energy against the gait solves spent, the gradient
-    method against CMA-ES; every design's path in (knee ratio, legs' share of the structure mass) and
-    in (hip ratio, hip winding's torque constant)."""
+    method against CMA-ES; every design's path in (knee ratio, legs' share of the structure mass), in
+    (hip ratio, hip winding's torque constant) and of the knee drives' place over the iterations."""
     plt = outputs.pyplot()
-    figure, axes = plt.subplots(1, 3, figsize=(17, 4.6), constrained_layout=True)
+    figure, axes = plt.subplots(1, 4, figsize=(22, 4.6), constrained_layout=True)
     problems = [p["name"] for p in study["problems"]]
     colours = dict(zip(problems, ("tab:blue", "tab:red", "tab:green", "tab:purple")))
     starts = study["starts_per_problem"]
@@ -141,6 +141,14 @@ def plot_optimisation(study: dict, path: Path) -> None:
     axes[2].set_xlabel("hip gear ratio N (H1)")
     axes[2].set_ylabel("hip winding's torque constant k_t [mN m/A]")
     axes[2].set_title("ratio and winding (flat in k_t while the voltage limit is inactive)")
+    offsets = study["path"].get("knee_drive_offsets")
+    if offsets:
+        offsets = np.array(offsets)  # (iterations + 1, B)
+        for b, design in enumerate(study["designs"]):
+            axes[3].plot(offsets[:, b], "-", lw=0.8, alpha=0.6, color=colours[design["problem"]])
+    axes[3].set_xlabel("co-design iteration")
+    axes[3].set_ylabel("knee drives' place (0 at the knee, 1 at the hip)")
+    axes[3].set_title("where the knee drives sit")
     for axis in axes[1:]:
         axis.grid(alpha=0.3, which="both")
     outputs.save_figure(figure, path, dpi=120)

@@ -35,6 +35,7 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
     catalogue_design,
     design_gait_model,
     joint_drives,
+    knee_drive_offset,
     mass_split,
     nearest_gearhead,
     nearest_winding,
@@ -43,6 +44,7 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
     stack,
     unstack,
     winding_range,
+    with_knee_drive_offset,
     with_mass_split,
     with_ratio,
     with_torque_constant,
@@ -71,6 +73,7 @@ __all__ = [
     "projected_gradient",
     "design_gait_model",
     "joint_drives",
+    "knee_drive_offset",
     "mass_split",
     "nearest_gearhead",
     "nearest_winding",
@@ -81,6 +84,7 @@ __all__ = [
     "stack",
     "unstack",
     "winding_range",
+    "with_knee_drive_offset",
     "with_mass_split",
     "with_ratio",
     "with_torque_constant",
@@ -109,11 +113,12 @@ def per_design(name: str, value, size: int) -> np.ndarray:
 
 def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_length=0.2, x0=None,
                   names: list[str] | None = None, progress=None,
-                  summary: Callable[[str], None] | None = None) -> list:
+                  summary: Callable[[str], None] | None = None, multipliers=None) -> list:
     """Solves the gait of every design in one batch (one compiled program per batch size).
 
     ``speed`` (m/s), ``power_limit`` (W) and ``step_length`` (m) are scalars or one value per design;
-    x0 (B, n) warm-starts (e.g. a solved reference gait repeated). Returns ``GaitSolution``s whose cost
+    x0 (B, n) warm-starts (e.g. a solved reference gait repeated), and so do ``multipliers``
+    (equalities (B, m_h), inequalities (B, m_g), e.g. those of solved gaits). Returns ``GaitSolution``s whose cost
     is the Joule energy (J), with status and per-group violations (the voltage limit among them);
     ``summary`` receives one line on the batch (statuses, gradients, time).
     """
@@ -126,7 +131,7 @@ def solve_designs(solver, designs: list[DriveDesign], speed, power_limit, step_l
         checks.same_length(designs=designs, names=checks.sequence("names", names, str, "label (str)"))
     models = [design_gait_model(d, v, p, length) for d, v, p, length in zip(designs, speeds, limits, lengths)]
     names = names or [f"design {b}" for b in range(size)]
-    solutions = solver.solve(names, models, x0=x0, progress=progress)
+    solutions = solver.solve(names, models, x0=x0, progress=progress, multipliers=multipliers)
     if summary:
         statuses = [s.status for s in solutions]
         summary(f"{statuses.count(nlp.CONVERGED)} of {size} converged "
@@ -156,6 +161,7 @@ def design_record(design: DriveDesign, solution) -> dict:
         "peak_current_A": np.max(np.abs(np.asarray(drive_model.current(torque_at_motor, drives))), axis=0).tolist(),
         "supply_voltage_V": float(design.supply_voltage),
         "total_mass_kg": float(design.total_mass),
+        "knee_drive_offset": float(knee_drive_offset(design)),
         "armature_kgm2": np.asarray(reflected_inertia(design)).tolist(),
         "speed_mps": solution.speed_mps, "power_limit_W": solution.power_limit_W,
         "status": solution.status, "max_violation": solution.max_violation,
@@ -173,40 +179,42 @@ def design_record(design: DriveDesign, solution) -> dict:
 
 JOINTS = ("H1", "K1", "H2", "K2")
 #: The co-design's variables per design, in order: log N per joint (H1, K1, H2, K2), log k_t per joint
-#: (the winding, N m/A: :func:`with_torque_constant`), then the mass split (:data:`MASS_SPLIT_NAMES`:
-#: fractions).
+#: (the winding, N m/A: :func:`with_torque_constant`), the mass split (:data:`MASS_SPLIT_NAMES`:
+#: fractions), and how far up their thighs the knee drives sit (:func:`with_knee_drive_offset`).
 DESIGN_VARIABLES = (tuple(f"log_ratio_{j}" for j in JOINTS) + tuple(f"log_torque_constant_{j}" for j in JOINTS)
-                    + MASS_SPLIT_NAMES)
+                    + MASS_SPLIT_NAMES + ("knee_drive_offset",))
 #: Their units, in the same order.
-DESIGN_UNITS = ("log of the gear ratio",) * 4 + ("log of k_t in N m/A",) * 4 + ("fraction",) * 2
+DESIGN_UNITS = (("log of the gear ratio",) * 4 + ("log of k_t in N m/A",) * 4 + ("fraction",) * 2
+                + ("fraction of the thigh from the knee to the hip",))
 #: Where each kind sits in the variables.
-RATIOS, WINDINGS, SPLIT = slice(0, 4), slice(4, 8), slice(8, 10)
+RATIOS, WINDINGS, SPLIT, PLACEMENT = slice(0, 4), slice(4, 8), slice(8, 10), slice(10, 11)
 #: A step of the mass split per unit step of log N (Adam moves every variable by about its learning
 #: rate): a step of 0.25 in log N (28 % in N) goes with 0.05 of the structure's mass moved.
 SPLIT_STEP_SCALE = 0.2
 
 
 def design_variables(design: DriveDesign) -> np.ndarray:
-    """The variables (:data:`DESIGN_VARIABLES`) of one design, (10,)."""
+    """The variables (:data:`DESIGN_VARIABLES`) of one design, (11,)."""
     return np.concatenate([np.log(np.asarray(design.ratio, dtype=float)),
                            np.log(np.asarray(design.torque_constant, dtype=float)),
-                           np.asarray(mass_split(design), dtype=float)])
+                           np.asarray(mass_split(design), dtype=float),
+                           np.asarray(knee_drive_offset(design), dtype=float)[None]])
 
 
 def with_variables(design: DriveDesign, theta, catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
-    """``design`` at the variables ``theta`` (10,) (traceable): the gear ratios with their gear data
-    (:func:`with_ratio`), the windings (:func:`with_torque_constant`) and the structure mass split
-    (:func:`with_mass_split`)."""
-    return with_mass_split(with_torque_constant(with_ratio(design, theta[RATIOS], catalogue), theta[WINDINGS]),
-                           theta[SPLIT])
+    """``design`` at the variables ``theta`` (11,) (traceable): the gear ratios with their gear data
+    (:func:`with_ratio`), the windings (:func:`with_torque_constant`), the structure mass split
+    (:func:`with_mass_split`) and the knee drives' place (:func:`with_knee_drive_offset`)."""
+    design = with_torque_constant(with_ratio(design, theta[RATIOS], catalogue), theta[WINDINGS])
+    return with_knee_drive_offset(with_mass_split(design, theta[SPLIT]), theta[PLACEMENT][0])
 
 
 def design_gradient(solver) -> Callable:
     """d J*/d theta for a batch of converged solutions, by the envelope theorem, theta the variables
-    of :data:`DESIGN_VARIABLES` (log N and log k_t per joint, the mass split).
+    of :data:`DESIGN_VARIABLES` (log N and log k_t per joint, the mass split, the knee drives' place).
 
-    Returns ``gradient(designs, theta, speed, power_limit, step_length, solutions) -> (B, 10)`` (designs
-    stacked with :func:`stack`, theta (B, 10); one compiled program for every batch of one size).
+    Returns ``gradient(designs, theta, speed, power_limit, step_length, solutions) -> (B, 11)`` (designs
+    stacked with :func:`stack`, theta (B, 11); one compiled program for every batch of one size).
     """
     catalogue = drive_model.load_catalogue()
 
@@ -229,23 +237,25 @@ def design_gradient(solver) -> Callable:
 
 def ratio_gradient(solver) -> Callable:
     """d J*/d log N per joint for a batch of converged solutions, by the envelope theorem (the first
-    four columns of :func:`design_gradient`, at each design's own windings and mass split).
+    four columns of :func:`design_gradient`, at each design's own windings, mass split and drive
+    places).
 
     Returns ``gradient(designs, log_ratio, speed, power_limit, step_length, solutions) -> (B, 4)``.
     """
     full = design_gradient(solver)
 
     def gradient(designs, log_ratio, speed, power_limit, step_length, solutions):
-        own = np.concatenate([np.log(np.asarray(designs.torque_constant, float)), np.asarray(mass_split(designs))],
-                             axis=1)
+        own = np.concatenate([np.log(np.asarray(designs.torque_constant, float)), np.asarray(mass_split(designs)),
+                              np.asarray(knee_drive_offset(designs))[:, None]], axis=1)
         return full(designs, np.concatenate([np.asarray(log_ratio, float), own], axis=1), speed, power_limit,
                     step_length, solutions)[:, RATIOS]
     return gradient
 
 
 #: Steps of :func:`gradient_check`'s central differences per variable: 0.01 in log N and in log k_t
-#: (1 %), 0.005 in the split's fractions.
-GRADIENT_CHECK_STEPS = (0.01,) * 8 + (0.005,) * 2
+#: (1 %), 0.005 in the split's fractions and of the thigh in the knee drives' place (small: one-sided
+#: at the ends of the thigh, first order; 0.02 there left 1.3 % on the tests' grid).
+GRADIENT_CHECK_STEPS = (0.01,) * 8 + (0.005,) * 3
 #: The barrier parameter :func:`gradient_check`'s re-solves start from: near the converged one, so that
 #: a re-solve stays on its design's branch. From the co-design's 1e-3 the barrier first pushes the gait
 #: off its active constraints, and on M4 in 16 knot spans the re-solve of a converged design from its
@@ -260,9 +270,10 @@ GRADIENT_CHECK_FLOOR = 0.01
 def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, power_limit, step_length=0.2,
                    steps=GRADIENT_CHECK_STEPS, batch: int | None = None) -> list[dict]:
     """The envelope gradient of J* at each design (its converged solution) against central differences
-    of optima re-solved at each variable +- its step (``steps``, one per :data:`DESIGN_VARIABLES`),
-    warm-started from the design's gait from the barrier parameter :data:`GRADIENT_CHECK_MU` (the
-    same compiled program): all 2 V re-solves of all designs in batches of ``batch``
+    of optima re-solved at each variable +- its step (``steps``, one per :data:`DESIGN_VARIABLES`; the
+    knee drives' place kept within [0, 1], so one-sided at its ends),
+    warm-started from the design's gait and multipliers from the barrier parameter
+    :data:`GRADIENT_CHECK_MU` (the same compiled program): all 2 V re-solves of all designs in batches of ``batch``
     (default 2 V; the last padded with copies of a design) so that a caller's compiled batch size
     serves. ``speed``, ``power_limit``, ``step_length``: numbers or one per design.
 
@@ -281,8 +292,13 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
                                (("speed", speed), ("power_limit", power_limit), ("step_length", step_length)))
     theta = np.stack([design_variables(d) for d in designs])
     offsets = np.concatenate([np.diag(steps), -np.diag(steps)])
-    trial = [with_variables(d, jnp.asarray(t + o)) for d, t in zip(designs, theta) for o in offsets]
+    # the drives' place is a fraction of the thigh: one-sided at its ends (the others extend smoothly)
+    points = theta[:, None, :] + offsets[None]  # (count, 2 V, V)
+    points[..., PLACEMENT] = np.clip(points[..., PLACEMENT], 0.0, 1.0)
+    trial = [with_variables(d, jnp.asarray(t)) for d, row in zip(designs, points) for t in row]
     warm = np.repeat(np.stack([s.x for s in solutions]), 2 * size, axis=0)
+    warm_eq, warm_in = (np.repeat(np.stack([getattr(s, f"multipliers_{kind}") for s in solutions]), 2 * size, axis=0)
+                        for kind in ("eq", "in"))
     batch = batch or 2 * size
     near = solver.using(dataclasses.replace(solver.options, mu_initial=GRADIENT_CHECK_MU))
     solved = []
@@ -291,13 +307,15 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
         pad = batch - len(trial[chunk])
         extend = lambda a: np.concatenate([a[chunk], np.repeat(a[chunk][:1], pad, axis=0)])  # noqa: E731
         solved += solve_designs(near, trial[chunk] + [trial[first]] * pad, extend(speeds), extend(limits),
-                                extend(lengths), x0=extend(warm))[:batch - pad]
+                                extend(lengths), x0=extend(warm),
+                                multipliers=(extend(warm_eq), extend(warm_in)))[:batch - pad]
     gradient = design_gradient(solver)(stack(designs), theta, speeds[::2 * size], limits[::2 * size],
                                        lengths[::2 * size], solutions)
     results = []
     for k in range(count):
         mine = solved[2 * size * k:2 * size * (k + 1)]
-        central = np.array([(mine[i].cost - mine[size + i].cost) / (2 * steps[i]) for i in range(size)])
+        spans = points[k, np.arange(size), np.arange(size)] - points[k, size + np.arange(size), np.arange(size)]
+        central = np.array([(mine[i].cost - mine[size + i].cost) / spans[i] for i in range(size)])
         ok = np.array([mine[i].status == nlp.CONVERGED and mine[size + i].status == nlp.CONVERGED
                        for i in range(size)])
         error = np.abs(gradient[k] - central) / np.maximum(np.abs(central),
@@ -313,7 +331,8 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
 @dataclasses.dataclass
 class CoOptimisation:
     """The path of :func:`co_optimise`: per iteration the ratios (B, 4), the torque constants (B, 4,
-    N m/A), the mass splits (B, 2: leg_fraction, thigh_share), Joule energies (B,), statuses; the final
+    N m/A), the mass splits (B, 2: leg_fraction, thigh_share), the knee drives' places (B,), Joule
+    energies (B,), statuses; the final
     designs and gaits, and per design whether it stopped on the projected-gradient rule (``stationary``,
     as judged at the last gradient taken)."""
 
@@ -324,37 +343,45 @@ class CoOptimisation:
     solutions: list
     mass_splits: list = dataclasses.field(default_factory=list)
     torque_constants: list = dataclasses.field(default_factory=list)
+    knee_drive_offsets: list = dataclasses.field(default_factory=list)
     stationary: list = dataclasses.field(default_factory=list)
 
 
-def _check_bounds(name: str, bounds, unit: str, within=(0.0, np.inf)) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) as arrays; ValueError naming ``bounds`` unless low < high, inside ``within``."""
+def _check_bounds(name: str, bounds, unit: str, within=(0.0, np.inf), closed: bool = False
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) as arrays; ValueError naming ``bounds`` unless low < high, inside ``within`` (open,
+    or with ``closed`` the closed interval)."""
     try:
         low, high = (np.asarray(b, dtype=float) for b in bounds)
     except (TypeError, ValueError):
         low = high = np.asarray(np.nan)
-    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(within[0] < low)
-            and np.all(low < high) and np.all(high < within[1])):
-        raise ValueError(f"{name} must be (low, high) with {within[0]:g} < low < high < {within[1]:g} ({unit}), "
-                         f"got {bounds!r}")
+    inside = (np.all(within[0] <= low) and np.all(high <= within[1]) if closed else
+              np.all(within[0] < low) and np.all(high < within[1]))
+    if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and inside and np.all(low < high)):
+        sign = "<=" if closed else "<"
+        raise ValueError(f"{name} must be (low, high) with {within[0]:g} {sign} low < high {sign} {within[1]:g} "
+                         f"({unit}), got {bounds!r}")
     return low, high
 
 
 def design_bounds(ratio_bounds=(14.0, 190.0), mass_split_bounds=MASS_SPLIT_BOUNDS,
-                  torque_constant_bounds=None) -> tuple[np.ndarray, np.ndarray]:
-    """(low, high) of :data:`DESIGN_VARIABLES`, (10,) each: log N within ``ratio_bounds`` (gear ratios),
+                  torque_constant_bounds=None, drive_offset_bounds=(0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of :data:`DESIGN_VARIABLES`, (11,) each: log N within ``ratio_bounds`` (gear ratios),
     log k_t within ``torque_constant_bounds`` (N m/A; default the catalogue's windings,
     :func:`winding_range`), the split within ``mass_split_bounds`` ((low, high) per split variable,
-    fractions). ValueError naming bounds that are not low < high inside (0, inf) and (0, 1)."""
+    fractions), the knee drives' place within ``drive_offset_bounds`` (fractions of the thigh, 0 at
+    the knee). ValueError naming bounds that are not low < high inside (0, inf), (0, 1) and [0, 1]."""
     ratio_low, ratio_high = _check_bounds("ratio_bounds", ratio_bounds, "gear ratio")
     kt_low, kt_high = _check_bounds("torque_constant_bounds", torque_constant_bounds or winding_range(), "N m/A")
     split_low, split_high = _check_bounds("mass_split_bounds", mass_split_bounds, "fractions", (0.0, 1.0))
-    if ratio_low.shape != () or kt_low.shape != () or split_low.shape != (2,):
-        raise ValueError(f"give ratio_bounds and torque_constant_bounds as (low, high) and mass_split_bounds as two "
-                         f"values each (leg_fraction, thigh_share), got {ratio_bounds!r}, {torque_constant_bounds!r} "
-                         f"and {mass_split_bounds!r}")
-    return (np.concatenate([np.full(4, np.log(ratio_low)), np.full(4, np.log(kt_low)), split_low]),
-            np.concatenate([np.full(4, np.log(ratio_high)), np.full(4, np.log(kt_high)), split_high]))
+    place_low, place_high = _check_bounds("drive_offset_bounds", drive_offset_bounds, "fraction of the thigh",
+                                          (0.0, 1.0), closed=True)
+    if ratio_low.shape != () or kt_low.shape != () or split_low.shape != (2,) or place_low.shape != ():
+        raise ValueError(f"give ratio_bounds, torque_constant_bounds and drive_offset_bounds as (low, high) and "
+                         f"mass_split_bounds as two values each (leg_fraction, thigh_share), got {ratio_bounds!r}, "
+                         f"{torque_constant_bounds!r}, {drive_offset_bounds!r} and {mass_split_bounds!r}")
+    return (np.concatenate([np.full(4, np.log(ratio_low)), np.full(4, np.log(kt_low)), split_low, [place_low]]),
+            np.concatenate([np.full(4, np.log(ratio_high)), np.full(4, np.log(kt_high)), split_high, [place_high]]))
 
 
 def projected_gradient(grad, theta, low, high) -> np.ndarray:
@@ -370,22 +397,26 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
                 iterations: int = 6, max_step: float = 0.25, ratio_bounds=(14.0, 190.0),
                 min_step: float = 0.02, solutions: list | None = None,
                 progress: Callable[[str], None] | None = None, mass_split_bounds=None,
-                torque_constant_bounds=None, gradient_tolerance: float = 1e-3) -> CoOptimisation:
+                torque_constant_bounds=None, drive_offset_bounds=None,
+                gradient_tolerance: float = 1e-3) -> CoOptimisation:
     """Gear ratios per joint (with ``torque_constant_bounds`` the windings, with ``mass_split_bounds``
-    the structure's mass split) co-optimised with the gait, all designs of the batch at once.
+    the structure's mass split, with ``drive_offset_bounds`` the knee drives' place) co-optimised with
+    the gait, all designs of the batch at once.
 
     The variables (:data:`DESIGN_VARIABLES`): log N per joint, log k_t per joint (the winding along the
     family, :func:`with_torque_constant`; only with ``torque_constant_bounds``, (low, high) in N m/A,
-    e.g. :func:`winding_range`) and the mass split (the legs' share of the structure mass, the thighs'
+    e.g. :func:`winding_range`), the mass split (the legs' share of the structure mass, the thighs'
     share of the legs'; the total kept; only with ``mass_split_bounds``, (low, high) per split
-    variable, e.g. :data:`MASS_SPLIT_BOUNDS`); a variable without bounds keeps each design's own value.
-    optax's Adam, one optimiser state per design (vmapped), its learning rate the design's step (at
-    first ``max_step`` in log N and log k_t, :data:`SPLIT_STEP_SCALE` times that in the split's
-    fractions: Adam's first step moves each variable by about its rate, later ones by less where the
-    gradient's sign wavers), the update projected onto the bounds (``optax.projections.projection_box``);
-    the gradient from the envelope theorem at each re-solved (warm-started) optimum
-    (:func:`design_gradient`). A step that raises the Joule energy or loses feasibility is undone (the
-    design keeps its point and optimiser state) and the design's step halved.
+    variable, e.g. :data:`MASS_SPLIT_BOUNDS`) and how far up their thighs the knee drives sit
+    (:func:`with_knee_drive_offset`; only with ``drive_offset_bounds``, e.g. (0, 1)); a variable
+    without bounds keeps each design's own value. optax's Adam, one optimiser state per design
+    (vmapped), its learning rate the design's step (at first ``max_step`` in log N, log k_t and the
+    drives' place, :data:`SPLIT_STEP_SCALE` times that in the split's fractions: Adam's first step
+    moves each variable by about its rate, later ones by less where the gradient's sign wavers), the
+    update projected onto the bounds (``optax.projections.projection_box``); the gradient from the
+    envelope theorem at each re-solved (warm-started) optimum (:func:`design_gradient`). A step that
+    raises the Joule energy or loses feasibility is undone (the design keeps its point and optimiser
+    state) and the design's step halved.
 
     Stopping rule, per design: a gradient component (times its variable's rate, so per unit of the
     design's step) of at most ``gradient_tolerance`` times the design's Joule energy counts as zero (no
@@ -405,10 +436,11 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
     checks.number_in("min_step", min_step, 0.0, 10.0, "(log N)")
     checks.number_in("gradient_tolerance", gradient_tolerance, 0.0, math.inf, "(relative)")
     theta = np.stack([design_variables(d) for d in designs])
-    low, high = (np.tile(b, (len(designs), 1)) for b in
-                 design_bounds(ratio_bounds, MASS_SPLIT_BOUNDS if mass_split_bounds is None else mass_split_bounds,
-                               torque_constant_bounds))
-    for kind, bounds in ((WINDINGS, torque_constant_bounds), (SPLIT, mass_split_bounds)):
+    low, high = (np.tile(b, (len(designs), 1)) for b in design_bounds(
+        ratio_bounds, MASS_SPLIT_BOUNDS if mass_split_bounds is None else mass_split_bounds, torque_constant_bounds,
+        (0.0, 1.0) if drive_offset_bounds is None else drive_offset_bounds))
+    for kind, bounds in ((WINDINGS, torque_constant_bounds), (SPLIT, mass_split_bounds),
+                         (PLACEMENT, drive_offset_bounds)):
         if bounds is None:  # each design keeps its own
             low[:, kind], high[:, kind] = theta[:, kind], theta[:, kind]
     gait_problem.check_problem(*(per_design(label, value, len(designs)) for label, value in
@@ -436,6 +468,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
         path.ratios.append(np.exp(theta_[:, RATIOS]).tolist())
         path.torque_constants.append(np.exp(theta_[:, WINDINGS]).tolist())
         path.mass_splits.append(theta_[:, SPLIT].tolist())
+        path.knee_drive_offsets.append(theta_[:, PLACEMENT.start].tolist())
         path.joule.append([s.cost for s in solutions_])
         path.status.append([s.status for s in solutions_])
 

@@ -40,6 +40,10 @@ PLANAR_ACTUATED = ("hip1", "knee1", "hip2", "knee2")
 #: The link that carries each joint's drive (motor + gear), at the joint: both hip drives sit in the
 #: torso, each knee drive at the knee end of its thigh.
 PLANAR_DRIVE_MOUNTS = ("torso", "thigh1", "torso", "thigh2")
+#: The joint each drive may move toward along the link carrying it (``Design.drive_offset``; a
+#: transmission then carries the torque back to its joint): the knee drives up their thighs to the
+#: hips; the hip drives, at the hips already, stay.
+PLANAR_DRIVE_SHIFTS = ("hip1", "hip1", "hip2", "hip2")
 
 #: Sites the gait's constraints read, in the order of its heights: the swing foot, the hip, the knees.
 GAIT_SITES = ("foot2", "hip", "knee1", "knee2")

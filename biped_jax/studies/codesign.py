@@ -5,9 +5,9 @@ warm-started from the paper design's gait.
 (a) peak joint power and Joule energy per metre against total mass (8-24 kg) at 0.417 and 0.555 m/s,
     with fitted power-law exponents; (b) the highest feasible speed against the gear ratio for the 42 V
     winding; (c) Joule energy per metre against robot mass over catalogue ratios x windings and its
-    Pareto front; (d) gear ratios and windings per joint and the structure's mass split co-optimised
-    with the gait for M2 and M4 from 64 starts each, snapped to the catalogue and re-verified, with
-    CMA-ES over the same variables and the same number of solves beside it.
+    Pareto front; (d) gear ratios and windings per joint, the structure's mass split and the knee
+    drives' place co-optimised with the gait for M2 and M4 from 64 starts each, snapped to the catalogue
+    and re-verified, with CMA-ES over the same variables and the same number of solves beside it.
 """
 
 from __future__ import annotations
@@ -180,6 +180,8 @@ class DesignProblem:
 DESIGN_PROBLEMS = (DesignProblem("M2", "12kg", 0.555, POWER_LIMIT), DesignProblem("M4", "18kg", 0.555, POWER_LIMIT))
 #: Starting designs per problem in study (d) (one batch of all problems' starts).
 STARTS = 64
+#: Study (d)'s bounds of the knee drives' place: anywhere from the knee (0) up the thigh to the hip (1).
+DRIVE_OFFSET_BOUNDS = (0.0, 1.0)
 #: CMA-ES's initial step in study (d), in the variables scaled to [0, 1] within their bounds.
 CMAES_SIGMA = 0.2
 
@@ -196,12 +198,13 @@ def snapped_design(continuous: codesign.DriveDesign, mass_class: str,
                    catalogue: drive_model.Catalogue) -> tuple[tuple[str, ...], tuple[str, ...], codesign.DriveDesign]:
     """The catalogue design nearest to a continuous one: per joint the nearest gearhead
     (:func:`~biped_jax.codesign.problem.nearest_gearhead`) and the winding at or below its torque
-    constant (:func:`~biped_jax.codesign.problem.nearest_winding`), its structure split as the
-    continuous design's. Returns (motors, gearheads, design)."""
+    constant (:func:`~biped_jax.codesign.problem.nearest_winding`), its structure split and knee drives'
+    place as the continuous design's. Returns (motors, gearheads, design)."""
     heads = tuple(codesign.nearest_gearhead(float(n), catalogue) for n in np.asarray(continuous.ratio))
     motors = tuple(codesign.nearest_winding(float(k), catalogue) for k in np.asarray(continuous.torque_constant))
-    design = codesign.catalogue_design(motors, heads, mass_class=mass_class, catalogue=catalogue)
-    return motors, heads, codesign.with_mass_split(design, codesign.mass_split(continuous))
+    design = codesign.with_mass_split(codesign.catalogue_design(motors, heads, mass_class=mass_class,
+                                                                catalogue=catalogue), codesign.mass_split(continuous))
+    return motors, heads, codesign.with_knee_drive_offset(design, codesign.knee_drive_offset(continuous))
 
 
 def drive_verdicts(motors, heads, solution, supply_voltage: float, catalogue: drive_model.Catalogue) -> list[dict]:
@@ -286,10 +289,12 @@ def energy_reduction(paper: dict, best: dict | None) -> dict | None:
 
 def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: int = STARTS,
                     problems=DESIGN_PROBLEMS, baseline: bool = True) -> dict:
-    """Study (d): per problem (:data:`DESIGN_PROBLEMS`) the gear ratio and the winding per joint and the
-    structure's mass split co-optimised with the gait (:func:`~biped_jax.codesign.problem.co_optimise`,
-    the variables within :func:`~biped_jax.codesign.problem.design_bounds`: ratios 14-190:1, the
-    catalogue's windings, the split within ``MASS_SPLIT_BOUNDS``) from ``starts`` designs per problem
+    """Study (d): per problem (:data:`DESIGN_PROBLEMS`) the gear ratio and the winding per joint, the
+    structure's mass split and the knee drives' place co-optimised with the gait
+    (:func:`~biped_jax.codesign.problem.co_optimise`, the variables within
+    :func:`~biped_jax.codesign.problem.design_bounds`: ratios 14-190:1, the catalogue's windings, the
+    split within ``MASS_SPLIT_BOUNDS``, the drives anywhere from the knee to the hip,
+    :data:`DRIVE_OFFSET_BOUNDS`) from ``starts`` designs per problem
     (:func:`design_starts`: the paper's design and a Sobol sequence), all problems' designs in one
     batch warm-started from the paper design's gait (``x_start``, M2's; the paper design of every
     problem is solved first, in the batch size of the other studies). Then each design snapped to the
@@ -299,7 +304,8 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     (:func:`cmaes_baseline`), as many generations of ``starts`` designs as the gradient method had
     batch solves."""
     catalogue = drive_model.load_catalogue()
-    low, high = codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue))
+    low, high = codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue),
+                                       drive_offset_bounds=DRIVE_OFFSET_BOUNDS)
     papers = [codesign.catalogue_design(mass_class=p.mass_class, catalogue=catalogue) for p in problems]
     say(f"(d) the paper's design of {', '.join(p.name for p in problems)}")
     padded = papers + [papers[0]] * (BATCH - len(papers))
@@ -316,7 +322,8 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     say(f"(d) {starts} starts x {len(problems)} problems in one batch")
     path = codesign.co_optimise(solver, designs, speeds, limits, x0=np.repeat(x_warm, starts, axis=0),
                                 iterations=iterations, progress=say, mass_split_bounds=codesign.MASS_SPLIT_BOUNDS,
-                                torque_constant_bounds=codesign.winding_range(catalogue))
+                                torque_constant_bounds=codesign.winding_range(catalogue),
+                                drive_offset_bounds=DRIVE_OFFSET_BOUNDS)
     snapped = [snapped_design(d, problems[b // starts].mass_class, catalogue) for b, d in enumerate(path.designs)]
     say("(d) re-solving the snapped catalogue designs")
     verified = codesign.solve_designs(solver, [d for _, _, d in snapped], speeds, limits,
@@ -357,14 +364,16 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
                       "low": low.tolist(), "high": high.tolist(),
                       "bounds": {"ratio": [14.0, 190.0],
                                  "torque_constant_Nm_per_A": list(codesign.winding_range(catalogue)),
-                                 "mass_split": [list(b) for b in codesign.MASS_SPLIT_BOUNDS]}},
+                                 "mass_split": [list(b) for b in codesign.MASS_SPLIT_BOUNDS],
+                                 "knee_drive_offset": list(DRIVE_OFFSET_BOUNDS)}},
         "problems": [dataclasses.asdict(p) for p in problems], "starts_per_problem": starts,
         "designs": [{"problem": records[b]["problem"], "start": theta.tolist(),
                      "final": codesign.design_variables(d).tolist(), "status": s.status,
                      "joule_energy_J": s.cost, "stationary": path.stationary[b] if path.stationary else False}
                     for b, (theta, d, s) in enumerate(zip(np.concatenate(theta0), path.designs, path.solutions))],
         "path": {"ratios": path.ratios, "torque_constants_Nm_per_A": path.torque_constants,
-                 "mass_splits": path.mass_splits, "joule_J": path.joule, "status": path.status},
+                 "mass_splits": path.mass_splits, "knee_drive_offsets": path.knee_drive_offsets,
+                 "joule_J": path.joule, "status": path.status},
         "snapped": records, "per_problem": per_problem,
         "best": {name: entry["best"] for name, entry in per_problem.items()},
         "energy_reduction_vs_paper": {name: entry["energy_reduction_vs_paper"] for name, entry in per_problem.items()},
