@@ -189,7 +189,16 @@ def codesign(out: Path, settings, iterations: int, resume: bool = False, starts:
                    else reduction["reason"])
         console.print(f"(d) {name}: best catalogue design {' / '.join(record['gearheads'])}, "
                       f"{' / '.join(record['motors'])}: {record['joule_energy_per_metre_J_per_m']:.4g} J/m, "
-                      f"{against}")
+                      f"{against}; " + ("passes the catalogue check" if record["passes_catalogue_check"] else
+                                        "fails the catalogue check: " + "; ".join(
+                                            f"{v['joint']} {v['reason']}" for v in record["drive_verdicts"]
+                                            if not v["feasible"])))
+        passing = entry["best_passing_catalogue_check"]
+        if passing is not None and passing["index"] != entry["best"]:
+            console.print(f"    the best passing the catalogue check: {' / '.join(passing['gearheads'])}, "
+                          f"{' / '.join(passing['motors'])}: {passing['joule_energy_J']:.4g} J per step")
+        elif passing is None:
+            console.print("    no converged design passes the catalogue check (gear torque and speed, thermal)")
     figures = "codesign_optimisation.png" if quick else "four figures"
     console.print(f"wrote {out}/codesign.json and {figures} in {time.perf_counter() - started:.0f} s")
     return results

@@ -363,6 +363,60 @@ def test_the_reduction_against_the_paper_design_says_why_where_there_is_none():
     assert reduction["reduction"] is None and "no converged gait (grid dependent)" in reduction["reason"]
 
 
+def test_the_verdicts_per_joint_agree_with_the_check_of_all_joints_together(paper_solutions):
+    """Study (d)'s verdicts check each joint's motor and gearhead on its own samples: together they
+    pass exactly when the selection's check of all four joints on one drive passes, with the same RMS
+    torque; the thermal margin is 1 - RMS / nominal motor torque."""
+    from biped_jax.drives import selection
+    from biped_jax.robots.planar_biped import ACTUATED_INDEX
+    from biped_jax.studies import codesign as codesign_study
+    catalogue = drive_model.load_catalogue()
+    solution = paper_solutions[1]  # M2
+    for motor, head in (("RE25-42V", "GP32A-66.22"), ("RE25-118754", "GP32A-51"), ("RE25-48V", "GP32A-190")):
+        verdicts = codesign_study.drive_verdicts((motor,) * 4, (head,) * 4, solution, 38.0, catalogue)
+        trajectory = solution.trajectory
+        whole = selection.check_drive(selection.JointWorkspace(
+            np.asarray(trajectory.t), np.asarray(trajectory.qd)[:, ACTUATED_INDEX], np.asarray(trajectory.u),
+            solution.step_time_s), catalogue.motor(motor), catalogue.gearhead(head), 38.0)
+        assert all(v["feasible"] for v in verdicts) == whole["feasible"]
+        assert all(v["feasible_without_thermal"] for v in verdicts) == whole["feasible_without_thermal"]
+        worst = min(v["thermal_margin"] for v in verdicts)
+        assert worst == pytest.approx(1 - whole["rms_motor_torque_mNm"] * 1e-3 / catalogue.motor(motor).nominal_torque)
+    assert codesign_study.lowest_energy([{"joule_energy_J": 3.0}, {"joule_energy_J": 2.0}, {"joule_energy_J": 1.0}],
+                                        [0, 1]) == 1
+    assert codesign_study.lowest_energy([], []) is None
+
+
+def test_the_codesign_command_names_each_problems_best_design_and_its_verdicts(tmp_path, monkeypatch):
+    """What `biped-jax codesign --quick` prints at the end, from the study's result (the study itself
+    replaced: it takes minutes)."""
+    from biped_jax import commands
+    from biped_jax.report import progress
+    from biped_jax.studies import codesign as codesign_study
+    verdicts = [{"joint": "H1", "feasible": False, "reason": "gear: input speed 8000 rpm > 6000 rpm"},
+                {"joint": "K1", "feasible": True, "reason": "all checks pass"}]
+    best = {"gearheads": ["GP32A-190"] * 4, "motors": ["RE25-30V"] * 4, "joule_energy_per_metre_J_per_m": 5.0,
+            "passes_catalogue_check": False, "drive_verdicts": verdicts}
+    per_problem = {
+        "M2": {"best": 3, "best_design": best, "energy_reduction_vs_paper": {"reduction": 0.8},
+               "best_passing_catalogue_check": {"index": 5, "gearheads": ["GP32A-66.22"] * 4,
+                                                "motors": ["RE25-42V"] * 4, "joule_energy_J": 2.5}},
+        "M4": {"best": 9, "best_design": best, "best_passing_catalogue_check": None,
+               "energy_reduction_vs_paper": {"reduction": None, "reason": "the paper's design has no converged gait"}},
+        "M9": {"best": None}}
+    monkeypatch.setattr(codesign_study, "run_codesign", lambda *args, **kwargs: {"co_optimisation": {
+        "per_problem": per_problem}})
+    lines = []
+    monkeypatch.setattr(progress.console, "print", lambda *args, **kwargs: lines.append(" ".join(map(str, args))))
+    commands.codesign(tmp_path, None, 1, quick=True)
+    text = "\n".join(lines)
+    assert "(d) M2: best catalogue design GP32A-190" in text and "80% below the paper's design" in text
+    assert "fails the catalogue check: H1 gear: input speed 8000 rpm > 6000 rpm" in text
+    assert "the best passing the catalogue check: GP32A-66.22" in text and "2.5 J per step" in text
+    assert "the paper's design has no converged gait" in text and "no converged design passes" in text
+    assert "(d) M9: no snapped design has a converged gait" in text
+
+
 def test_the_study_starts_from_the_paper_design_and_snaps_each_joint_to_the_catalogue():
     """Study (d)'s starts: the paper's design, then Sobol points within the bounds; the snap takes per
     joint the nearest gearhead and the winding at or below, the split kept."""
