@@ -368,7 +368,6 @@ def test_the_verdicts_per_joint_agree_with_the_check_of_all_joints_together(pape
     pass exactly when the selection's check of all four joints on one drive passes, with the same RMS
     torque; the thermal margin is 1 - RMS / nominal motor torque."""
     from biped_jax.drives import selection
-    from biped_jax.robots.planar_biped import ACTUATED_INDEX
     from biped_jax.studies import codesign as codesign_study
     catalogue = drive_model.load_catalogue()
     solution = paper_solutions[1]  # M2
@@ -376,7 +375,7 @@ def test_the_verdicts_per_joint_agree_with_the_check_of_all_joints_together(pape
         verdicts = codesign_study.drive_verdicts((motor,) * 4, (head,) * 4, solution, 38.0, catalogue)
         trajectory = solution.trajectory
         whole = selection.check_drive(selection.JointWorkspace(
-            np.asarray(trajectory.t), np.asarray(trajectory.qd)[:, ACTUATED_INDEX], np.asarray(trajectory.u),
+            np.asarray(trajectory.t), np.asarray(trajectory.joint_speed), np.asarray(trajectory.u),
             solution.step_time_s), catalogue.motor(motor), catalogue.gearhead(head), 38.0)
         assert all(v["feasible"] for v in verdicts) == whole["feasible"]
         assert all(v["feasible_without_thermal"] for v in verdicts) == whole["feasible_without_thermal"]

@@ -212,10 +212,9 @@ def drive_verdicts(motors, heads, solution, supply_voltage: float, catalogue: dr
     (:func:`biped_jax.drives.selection.check_drive`: speed-torque line, thermal, gear and speed limits)
     and the thermal margin, 1 - RMS motor torque / nominal torque."""
     from biped_jax.drives import selection
-    from biped_jax.robots.planar_biped import ACTUATED_INDEX
     trajectory = solution.trajectory
     t = np.asarray(trajectory.t)
-    speed, torque = np.asarray(trajectory.qd)[:, ACTUATED_INDEX], np.asarray(trajectory.u)
+    speed, torque = np.asarray(trajectory.joint_speed), np.asarray(trajectory.u)
     verdicts = []
     for j, (motor, head) in enumerate(zip(motors, heads)):
         workspace = selection.JointWorkspace(t, speed[:, [j]], torque[:, [j]], solution.step_time_s)
