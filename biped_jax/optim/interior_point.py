@@ -82,6 +82,12 @@ class InteriorPointOptions:
       mu_based_multipliers: inequality multipliers without a warm start begin at mu / s (IPOPT's
         ``bound_mult_init_method=mu-based``) instead of 1: for problems with many more inequality rows
         than can be active, such as an epigraph form over every sample of a trajectory.
+      quorum, patience: once a fraction ``quorum`` of a batch's problems has finished, the others get
+        ``patience`` more iterations (rounded up to blocks), then the batch stops and they end
+        ``iteration limit`` (or ``infeasible`` above ``infeasible_above``) with their violations. A
+        batched loop costs every lane an iteration until its last problem finishes, so a few slow
+        problems (a co-design start far from any gait) otherwise set the time of the whole batch. The
+        default (quorum 1) waits for every problem.
     """
 
     tolerance: float = 1e-8
@@ -99,6 +105,8 @@ class InteriorPointOptions:
     max_failures: int = 5
     infeasible_above: float = 1e-3
     mu_based_multipliers: bool = False
+    quorum: float = 1.0
+    patience: int = 0
 
     def __post_init__(self):
         for name in ("tolerance", "feasibility", "acceptable_tolerance", "mu_initial", "slack_push",
@@ -110,6 +118,10 @@ class InteriorPointOptions:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"InteriorPointOptions.{name} must be a positive integer, got {value!r}")
+        if isinstance(self.quorum, bool) or not isinstance(self.quorum, (int, float)) or not 0 < self.quorum <= 1:
+            raise ValueError(f"InteriorPointOptions.quorum must be a fraction in (0, 1], got {self.quorum!r}")
+        if isinstance(self.patience, bool) or not isinstance(self.patience, int) or self.patience < 0:
+            raise ValueError(f"InteriorPointOptions.patience must be a non-negative integer, got {self.patience!r}")
 
 
 # IPOPT's constants (Waechter and Biegler 2006, Sec. 2-3), not options there either.
@@ -481,8 +493,9 @@ class CompiledInteriorPoint:
 
 def loop_options(options: InteriorPointOptions) -> InteriorPointOptions:
     """``options`` less the settings the compiled iterations do not depend on (the first barrier
-    parameter, the iteration budget and its blocks): solves that differ only in those share programs."""
-    return dataclasses.replace(options, mu_initial=0.1, max_iterations=1, block=1)
+    parameter, the iteration budget, its blocks, the batch's quorum and patience): solves that differ
+    only in those share programs."""
+    return dataclasses.replace(options, mu_initial=0.1, max_iterations=1, block=1, quorum=1.0, patience=0)
 
 
 def compile_problem(problem: nlp.ConstrainedProblem, options: InteriorPointOptions = InteriorPointOptions()
@@ -674,7 +687,7 @@ def _solve_batch(compiled, options, structure, x0, params, multipliers, progress
     state = compiled.initial(x0, params, y0, z0, options.mu_initial)
     state = state._replace(code=jnp.where(jnp.arange(padded) < batch, state.code, _PADDING))
     history = []
-    until = 0
+    until, quorum_at = 0, None
     while until < options.max_iterations:
         until = min(until + options.block, options.max_iterations)
         state = compiled.block(structure, params, state, jnp.asarray(until, jnp.int32))
@@ -687,6 +700,10 @@ def _solve_batch(compiled, options, structure, x0, params, multipliers, progress
         if progress:
             progress(int(np.max(np.asarray(state.iteration))), row)
         if row["done"].all():
+            break
+        if quorum_at is None and row["done"].mean() >= options.quorum:
+            quorum_at = until
+        if quorum_at is not None and until - quorum_at >= options.patience:
             break
     state = jax.tree.map(lambda a: a[:batch], state)
     viol = history[-1]["violation"]
