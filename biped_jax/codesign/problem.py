@@ -17,6 +17,7 @@ solves).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Callable
 
@@ -209,6 +210,20 @@ def with_variables(design: DriveDesign, theta, catalogue: drive_model.Catalogue 
     return with_knee_drive_offset(with_mass_split(design, theta[SPLIT]), theta[PLACEMENT][0])
 
 
+@functools.lru_cache(maxsize=8)
+def _envelope(problem: nlp.ConstrainedProblem) -> Callable:
+    """The jitted envelope gradient of ``problem`` (a gait solver's) in the design variables: one per
+    problem, so that every caller (the co-design loop, the gradient check, a solver's ``using``
+    variants) shares its traced and compiled programs."""
+    catalogue = drive_model.load_catalogue()
+
+    def parameters_to_model(parameters):
+        design, theta, speed, power_limit, step_length = parameters
+        return design_gait_model(with_variables(design, theta, catalogue), speed, power_limit, step_length)
+
+    return nlp.optimal_value_gradient(problem, parameters_to_model)
+
+
 def design_gradient(solver) -> Callable:
     """d J*/d theta for a batch of converged solutions, by the envelope theorem, theta the variables
     of :data:`DESIGN_VARIABLES` (log N and log k_t per joint, the mass split, the knee drives' place).
@@ -216,13 +231,7 @@ def design_gradient(solver) -> Callable:
     Returns ``gradient(designs, theta, speed, power_limit, step_length, solutions) -> (B, 11)`` (designs
     stacked with :func:`stack`, theta (B, 11); one compiled program for every batch of one size).
     """
-    catalogue = drive_model.load_catalogue()
-
-    def parameters_to_model(parameters):
-        design, theta, speed, power_limit, step_length = parameters
-        return design_gait_model(with_variables(design, theta, catalogue), speed, power_limit, step_length)
-
-    envelope = nlp.optimal_value_gradient(solver.problem, parameters_to_model)
+    envelope = _envelope(solver.problem)
 
     def gradient(designs, theta, speed, power_limit, step_length, solutions):
         size = theta.shape[0]

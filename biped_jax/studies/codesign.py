@@ -191,6 +191,11 @@ DRIVE_OFFSET_BOUNDS = (0.0, 1.0)
 CMAES_SIGMA = 0.2
 
 
+#: One design at many variables (V,) -> (B, V): the designs of study (d)'s starts and CMA-ES's
+#: generations, one compiled program.
+_designs_at = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
+
+
 def design_starts(paper: codesign.DriveDesign, count: int, low, high, seed: int = 0) -> np.ndarray:
     """``count`` starting variables (count, V): the paper's design first, then a scrambled Sobol
     sequence over the bounds (``scipy.stats.qmc``; the same points for every problem with one seed)."""
@@ -251,13 +256,12 @@ def cmaes_baseline(solver, papers, problems, low, high, x_warm, penalties, gener
                                            {"bounds": [0.0, 1.0], "seed": seed, "popsize": population,
                                             "verbose": -9})
                   for paper in papers]
-    apply = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
     best = [[] for _ in problems]
     best_variables = [None] * len(problems)
     for generation in range(generations):
         units = [np.asarray(strategy.ask()) for strategy in strategies]
         designs = [d for paper, unit in zip(papers, units)
-                   for d in codesign.unstack(apply(paper, low + unit * (high - low)))]
+                   for d in codesign.unstack(_designs_at(paper, low + unit * (high - low)))]
         solutions = codesign.solve_designs(solver, designs, _per_problem(problems, population, lambda p: p.speed),
                                            _per_problem(problems, population, lambda p: p.power_limit),
                                            x0=np.repeat(x_warm, population, axis=0), summary=say)
@@ -327,8 +331,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
         x0=np.tile(x_start, (BATCH, 1)), summary=say)[:len(problems)]
     x_warm = np.stack([s.x if _converged(s) else x_start for s in paper_solutions])
     theta0 = [design_starts(paper, starts, low, high) for paper in papers]
-    apply = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
-    designs = [d for paper, theta in zip(papers, theta0) for d in codesign.unstack(apply(paper, theta))]
+    designs = [d for paper, theta in zip(papers, theta0) for d in codesign.unstack(_designs_at(paper, theta))]
     speeds = _per_problem(problems, starts, lambda p: p.speed)
     limits = _per_problem(problems, starts, lambda p: p.power_limit)
     say(f"(d) {starts} starts x {len(problems)} problems in one batch")
@@ -387,7 +390,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     result = {
         "variables": {"names": list(codesign.DESIGN_VARIABLES), "units": list(codesign.DESIGN_UNITS),
                       "low": low.tolist(), "high": high.tolist(),
-                      "bounds": {"ratio": [14.0, 190.0],
+                      "bounds": {"ratio": np.exp([low[codesign.RATIOS][0], high[codesign.RATIOS][0]]).tolist(),
                                  "torque_constant_Nm_per_A": list(codesign.winding_range(catalogue)),
                                  "mass_split": [list(b) for b in codesign.MASS_SPLIT_BOUNDS],
                                  "knee_drive_offset": list(DRIVE_OFFSET_BOUNDS)}},
