@@ -27,7 +27,7 @@ from _results import save_results
 
 
 def designs_for(batch: int):
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     ratios = np.exp(np.linspace(np.log(30.0), np.log(110.0), batch)) if batch > 1 else np.array([66.22])
     masses = np.linspace(10.0, 14.0, batch) if batch > 1 else np.array([12.0])
     rng = np.random.default_rng(0)
@@ -47,7 +47,7 @@ def converged(solutions) -> int:
 
 
 def interior_point_batch(solver, batch: int, x_start) -> tuple[dict, list]:
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     from biped_jax.studies import codesign as codesign_study
     solver = solver.using(codesign_study.IP_WARM_OPTIONS)
     designs = designs_for(batch)
@@ -68,7 +68,7 @@ def interior_point_batch(solver, batch: int, x_start) -> tuple[dict, list]:
 
 
 def serial_sample(solver, batch: int, sample: int, x_start, reference) -> dict:
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     designs = designs_for(batch)
     picks = np.linspace(0, batch - 1, sample).round().astype(int)
     started = time.perf_counter()
@@ -97,7 +97,7 @@ def main():
     parser.add_argument("--name", default="codesign_throughput", help="results file stem")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import codesign as codesign_study

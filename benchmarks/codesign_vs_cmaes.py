@@ -40,7 +40,7 @@ def best_so_far(costs):
 
 
 def gradient_method(solver, paper, reference, iterations: int) -> dict:
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     started = time.perf_counter()
     path = codesign.co_optimise(solver, [paper], SPEED, POWER_LIMIT, x0=reference.x[None], iterations=iterations,
                                 ratio_bounds=RATIO_BOUNDS, solutions=[reference],
@@ -59,7 +59,7 @@ def gradient_method(solver, paper, reference, iterations: int) -> dict:
 def cmaes(solver, paper, reference, generations: int, seed: int) -> dict:
     import cma
 
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     low, high = codesign.design_bounds(RATIO_BOUNDS)
     start = (codesign.design_variables(paper) - low) / (high - low)
     strategy = cma.CMAEvolutionStrategy(start, 0.2, {"bounds": [0.0, 1.0], "seed": seed, "verbose": -9})
@@ -102,7 +102,7 @@ def main():
     parser.add_argument("--name", default="codesign_vs_cmaes", help="results file stem")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import codesign as codesign_study

@@ -39,7 +39,7 @@ def main():
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver, stack_tree
     from biped_jax.optim import exact_derivatives, jacobian
-    from biped_jax.optim import interior_point as ip
+    from biped_jax.optim import interior_point
     from biped_jax.studies import paper as study
 
     settings = gait_problem.GaitSettings(spans=args.spans, substeps=args.substeps)
@@ -51,8 +51,8 @@ def main():
         params = stack_tree(picked)
         x0 = solver._initial_guess(params)
         problem, structure = solver.prepared("energy", x0, params)
-        options = ip.InteriorPointOptions()
-        compiled = ip.compile_problem(problem, options)
+        options = interior_point.InteriorPointOptions()
+        compiled = interior_point.compile_problem(problem, options)
         _, h0, g0 = jax.eval_shape(problem.evaluate, x0[0], jax.tree.map(lambda a: a[0], params))
         zeros = (jnp.zeros((batch_size,) + h0.shape), jnp.zeros((batch_size,) + g0.shape))
         state = compiled.initial(x0, params, *zeros, options.mu_initial)
@@ -68,12 +68,12 @@ def main():
 
         def newton_step(hessian, jac_h, jac_g, grad, h, g, s, z, mu):
             sigma = z / s
-            solve, _ = ip.condensed_newton_solver(hessian, jac_h, jac_g, sigma, jnp.zeros(()), jnp.zeros(()),
-                                                  options.equality_regularisation)
+            solve, _ = interior_point.condensed_newton_solver(hessian, jac_h, jac_g, sigma, jnp.zeros(()),
+                                                              jnp.zeros(()), options.equality_regularisation)
             return solve(-(grad + jacobian.rmatvec(jac_g, sigma * (g + s) + mu / s - z)), h)
 
         newton = jax.jit(jax.vmap(newton_step))
-        one_iteration = jax.jit(jax.vmap(functools.partial(ip._iterate, problem, options),
+        one_iteration = jax.jit(jax.vmap(functools.partial(interior_point._iterate, problem, options),
                                          in_axes=(None, 0, 0)))
         f, h, g, grad, jac_h, jac_g, hessian = derivatives(state.x, params, weight, y, z, structure)
         newton_args = (hessian, state.scale_h[:, :, None] * jac_h,
@@ -96,7 +96,8 @@ def main():
         trials = float(np.mean(np.asarray(after.evaluations - state.evaluations)
                                - exact_derivatives.directions(problem, structure) - 2))
         # XLA's own figure for the iteration program (arguments, outputs, temporaries), per problem
-        memory = ip.program_memory(compiled, structure, x0, params, zeros) / ip.padded_batch(batch_size)
+        memory = (interior_point.program_memory(compiled, structure, x0, params, zeros)
+                  / interior_point.padded_batch(batch_size))
         rows.append({"batch": batch_size, "phase": "trial points per iteration (mean)", "count": trials,
                      "warm_iterations_s": warm_seconds, "program_memory_per_problem_MiB": memory / 2**20})
         print(f"B = {batch_size}: n = {x0.shape[1]}, m_h = {h.shape[1]}, m_g = {g.shape[1]}, "

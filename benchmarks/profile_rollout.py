@@ -19,18 +19,18 @@ VARIANTS = ((True, 1), (False, 1), (True, 2))  # (checkpoint each step, scan unr
 
 def make_rollout_cost(biped, remat: bool, unroll: int):
     """A scalar cost of a 200-step single-support rollout (stance force included), for timing."""
-    from biped_jax.dynamics import hybrid_step
-    mjx = hybrid_step.mjx
-    pinned = hybrid_step.with_timestep(biped.pinned, TIMESTEP)
+    from biped_jax.dynamics import mjx_biped
+    mjx = mjx_biped.mjx
+    pinned = mjx_biped.with_timestep(biped.pinned, TIMESTEP)
 
     def rollout_cost(design, q0, qd0, controls):
-        model = hybrid_step.with_design(hybrid_step.PlanarBiped(pinned, biped.floating), design).pinned
+        model = mjx_biped.with_design(mjx_biped.PlanarBiped(pinned, biped.floating), design).pinned
         template = mjx.make_data(model)
 
         def step(state, u):
             q, qd = state
             data = mjx.forward(model, template.replace(qpos=q, qvel=qd, ctrl=u))
-            force = hybrid_step.stance_force(model, data)
+            force = mjx_biped.stance_force(model, data)
             data = mjx.euler(model, data)
             return (data.qpos, data.qvel), (data.qpos, force)
         if remat:
@@ -47,9 +47,9 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     options = parser.parse_args()
     jax.config.update("jax_enable_x64", not options.float32)
-    from biped_jax.dynamics import hybrid_step
-    biped = hybrid_step.load_planar_biped("12kg")
-    args = (hybrid_step.planar_design("12kg"), jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0]),
+    from biped_jax.dynamics import mjx_biped
+    biped = mjx_biped.load_planar_biped("12kg")
+    args = (mjx_biped.planar_design("12kg"), jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0]),
             jnp.array([2.5, 0.0, 2.5, -4.0, 0.0]), jnp.full((HORIZON, 4), 0.5))
     if options.float32:
         args = jax.tree.map(lambda a: a.astype(jnp.float32), args)

@@ -19,16 +19,15 @@ from _results import save_results
 
 
 def rollout_cost(biped, design, q0, qd0, controls, dynamics="mjx"):
-    from biped_jax.dynamics import hybrid_step
-    from biped_jax.dynamics import planar_chain
-    pinned = hybrid_step.with_design(biped, design).pinned
-    if dynamics == "chain":
-        trajectory = planar_chain.stance_rollout(planar_chain.PlanarChain.from_model(biped.pinned), pinned,
-                                                 q0, qd0, controls)
+    from biped_jax.dynamics import interface, mjx_biped, planar_chain
+    designed = mjx_biped.with_design(biped, design)
+    if dynamics == "chain":  # the structure read from the concrete model: the designed one is traced
+        backend = planar_chain.ChainDynamics.of(designed.pinned, planar_chain.PlanarChain.from_model(biped.pinned))
     else:
-        trajectory = hybrid_step.stance_rollout(pinned, q0, qd0, controls)
+        backend = interface.stance_dynamics(designed, "mjx")
+    trajectory = interface.stance_rollout(backend, q0, qd0, controls)
     q, qd, force = trajectory.q, trajectory.qd, trajectory.ground_force
-    foot, _ = hybrid_step.swing_foot(pinned, q[-1], qd[-1])
+    foot, _ = backend.swing_foot(q[-1], qd[-1])
     return (jnp.sum(q[-1] ** 2) + 0.1 * jnp.sum(qd[-1] ** 2) + foot[1] ** 2
             + 1e-3 * jnp.sum(controls ** 2) + 1e-6 * jnp.sum(force[:, 1] ** 2))
 
@@ -53,16 +52,16 @@ def main():
     parser.add_argument("--repeats", type=int, default=10)
     parser.add_argument("--float32", action="store_true", help="float32 instead of float64")
     parser.add_argument("--dynamics", choices=("mjx", "chain"), default="mjx",
-                        help="MJX's pipeline (hybrid_step.stance_rollout) or the closed-form planar chain")
+                        help="the backend of biped_jax.dynamics.interface: MJX's pipeline or the closed-form chain")
     parser.add_argument("--name", default="rollout_gradient", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", not args.float32)
 
-    from biped_jax.dynamics import hybrid_step
-    biped = hybrid_step.load_planar_biped("12kg")
-    biped = hybrid_step.PlanarBiped(pinned=hybrid_step.with_timestep(biped.pinned, 1.8e-3), floating=biped.floating)
-    design = hybrid_step.planar_design("12kg")
+    from biped_jax.dynamics import mjx_biped
+    biped = mjx_biped.load_planar_biped("12kg")
+    biped = mjx_biped.PlanarBiped(pinned=mjx_biped.with_timestep(biped.pinned, 1.8e-3), floating=biped.floating)
+    design = mjx_biped.planar_design("12kg")
     q0 = jnp.array([-0.35, 0.0, -0.35, 0.35, 0.0])
     qd0 = jnp.array([2.5, 0.0, 2.5, -4.0, 0.0])
     controls = jnp.full((args.horizon, 4), 0.5)

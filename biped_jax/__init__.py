@@ -1,7 +1,8 @@
 """biped_jax: design fast-walking legged robots by differentiable simulation (JAX + MuJoCo MJX).
 
 Subpackages in the order of the data flow (README "Module map"): ``robots`` (registry, specifications,
-MJCF, design arrays), ``dynamics`` (the walking step in MJX and the planar chain in closed form),
+MJCF, design arrays), ``dynamics`` (the walking step behind one interface: MJX, the planar chain in
+closed form, MuJoCo C),
 ``optim`` (the batched interior point and its exact derivatives), ``gait`` (the optimal walking step:
 problem, solver, report, heuristic starts, MuJoCo C reference), ``drives`` (motors and gearheads,
 drive-train selection), ``codesign``, ``donald``, ``humanoid``, ``studies`` (one module per
@@ -16,9 +17,9 @@ import importlib
 
 _MODULES = {
     "robots.design": ("Design", "apply_design", "check_design", "design_layout"),
-    "dynamics.hybrid_step": ("PlanarBiped", "StanceTrajectory", "load_planar_biped", "stance_rollout",
-                             "with_design"),
-    "dynamics.impact": ("Touchdown", "touchdown"),
+    "dynamics.mjx_biped": ("PlanarBiped", "load_planar_biped", "with_design"),
+    "dynamics.interface": ("StanceTrajectory", "stance_dynamics", "stance_rollout", "stance_step", "touchdown"),
+    "dynamics.impact": ("Touchdown",),
     "robots.registry": ("ROBOTS", "load_mj_model", "load_mjx_model", "model_path"),
     "gait.problem": ("GaitSettings", "gait_model", "START_FAMILIES"),
     "gait.solver": ("GaitSolver", "GaitSolution"),

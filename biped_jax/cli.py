@@ -128,6 +128,15 @@ def _parser() -> argparse.ArgumentParser:
                      help="bound on every joint's |qdot u|, W (default 20)")
     own.add_argument("--smallest-power-limit", action="store_true",
                      help="also find the smallest power limit at which the model still walks")
+    own.add_argument("--motor", default=None,
+                     help="catalogue motor at every joint (e.g. RE25-42V; default: ideal drives, the paper's "
+                          "problem; with --gearhead alone RE25-42V): the robot carries the drives, J is the "
+                          "motors' Joule energy, the gait keeps within the supply voltage, and results say "
+                          "whether each joint's drive passes the catalogue check")
+    own.add_argument("--gearhead", default=None,
+                     help="catalogue gearhead at every joint (e.g. GP32A-66.22; with --motor alone GP32A-66.22)")
+    own.add_argument("--supply-voltage", type=_number("supply-voltage", 0.0, 1e4), default=None,
+                     help="the drives' supply voltage, V (with --motor or --gearhead; default the catalogue's 38)")
     _space_arguments(own, substeps=STUDY_SUBSTEPS, segments=True, spans=STUDY_SPANS)
     own.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
     bench = subcommands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")

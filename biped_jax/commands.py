@@ -53,17 +53,17 @@ def heuristic_steps(out: Path) -> dict:
 def reproduce(out: Path, settings, resume: bool = False, quick: bool = False) -> dict:
     """The paper's study with a live progress display; see :func:`biped_jax.studies.paper.run_study`. ``quick``:
     the coarse look of :data:`biped_jax.studies.paper.QUICK_SETTINGS` (``settings`` ignored), every file stamped."""
-    from biped_jax.studies import paper as study
+    from biped_jax.studies import paper as paper_study
 
     started = time.perf_counter()
-    stamp = outputs.stamped(study.QUICK_STAMP) if quick else contextlib.nullcontext()
+    stamp = outputs.stamped(paper_study.QUICK_STAMP) if quick else contextlib.nullcontext()
     with live_progress(("M1-M4", "20 W:", "restart:", "smallest power limit")) as progress, stamp:
         if quick:
-            console.log(study.QUICK_STAMP)
-            results = study.run_study(out, study.QUICK_SETTINGS, progress, resume=resume,
-                                      families=study.QUICK_FAMILIES)
+            console.log(paper_study.QUICK_STAMP)
+            results = paper_study.run_study(out, paper_study.QUICK_SETTINGS, progress, resume=resume,
+                                      families=paper_study.QUICK_FAMILIES)
         else:
-            results = study.run_study(out, settings, progress, resume=resume)
+            results = paper_study.run_study(out, settings, progress, resume=resume)
     for record in results["models"]:
         check = record["refinement"]
         console.print(f"{record['model']}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -79,14 +79,14 @@ def kelly(out: Path, spans: int, degree: int, substeps: int) -> dict:
     """Kelly's benchmark with a live progress line; see :func:`biped_jax.studies.kelly.run_kelly`."""
     import dataclasses
 
-    from biped_jax.studies import kelly as benchmark
+    from biped_jax.studies import kelly as kelly_study
 
     # a shooting segment per knot span, as the benchmark's own settings
-    settings = dataclasses.replace(benchmark.KELLY_SETTINGS, spans=spans, degree=degree, substeps=substeps,
+    settings = dataclasses.replace(kelly_study.KELLY_SETTINGS, spans=spans, degree=degree, substeps=substeps,
                                    segments=spans)
     started = time.perf_counter()
     with live_progress(("interior-point iteration",)) as progress:
-        record = benchmark.run_kelly(out, settings, progress)
+        record = kelly_study.run_kelly(out, settings, progress)
     console.print(f"Kelly's five-link biped: {record['status']}, J = {record['cost']:.4g} N^2 m^2 s on "
                   f"{record['steps']} Runge-Kutta steps ({record['cost_coarse']:.4g} on {record['steps_coarse']}, "
                   f"{record['cost_refined']:.4g} on {record['steps_refined']}), largest violation "
@@ -301,11 +301,11 @@ def run_codesign(args) -> int:
 
 def solve(out: Path, problem, settings, smallest_power_limit: bool = False) -> dict:
     """One problem of the user's own with a live progress display; see :mod:`biped_jax.studies.solve`."""
-    from biped_jax.studies import solve as own
+    from biped_jax.studies import solve as solve_study
 
     started = time.perf_counter()
     with live_progress(("starts:", "refined space:", "smallest power limit")) as progress:
-        results = own.run_solve(out, problem, settings, smallest_power_limit, progress)
+        results = solve_study.run_solve(out, problem, settings, smallest_power_limit, progress)
     record = results["solution"]
     check = record["refinement"]
     console.print(f"{problem.name}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -324,7 +324,8 @@ def check_solve(args):
     """The problem and the space of ``biped-jax solve``, checked as the API checks them (the legs' reach,
     segments dividing spans) before the output folder is touched; the parser names a bad value."""
     from biped_jax.studies.solve import Problem
-    problem = Problem(args.mass_class, args.speed, args.step_length, args.power_limit)
+    problem = Problem(args.mass_class, args.speed, args.step_length, args.power_limit, motor=args.motor,
+                      gearhead=args.gearhead, supply_voltage=args.supply_voltage)
     configure_jax()
     try:
         problem.model()

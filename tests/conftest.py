@@ -1,6 +1,7 @@
 """Test configuration: float64 (finite differences and physics checks need it) and JAX's persistent
 compilation cache, so a second run of the suite skips most compilation."""
 
+import dataclasses
 import os
 from pathlib import Path
 
@@ -22,26 +23,44 @@ def short_settings():
 
 @pytest.fixture(scope="session")
 def biped12():
-    from biped_jax.dynamics import hybrid_step
-    return hybrid_step.load_planar_biped("12kg")
+    from biped_jax.dynamics import mjx_biped
+    return mjx_biped.load_planar_biped("12kg")
 
 
 @pytest.fixture(scope="session")
 def biped18():
-    from biped_jax.dynamics import hybrid_step
-    return hybrid_step.load_planar_biped("18kg")
+    from biped_jax.dynamics import mjx_biped
+    return mjx_biped.load_planar_biped("18kg")
 
 
 #: The single-support rollouts' horizon in every test and the README's quickstart: one compiled program.
 ROLLOUT_STEPS = 50
 
 
+#: The walking step's backends (:mod:`biped_jax.dynamics.interface`): the physics tests run against each.
+BACKENDS = ("mjx", "chain", "mujoco")
+
+
+def backend(biped, name: str, dt: float | None = None):
+    """The backend ``name`` of ``biped``, its pinned model stepping ``dt`` s where given."""
+    from biped_jax.dynamics import interface, mjx_biped
+    if dt is not None:
+        biped = dataclasses.replace(biped, pinned=mjx_biped.with_timestep(biped.pinned, dt))
+    return interface.stance_dynamics(biped, name)
+
+
 @pytest.fixture(scope="session")
 def rollout():
-    """One jitted single-support rollout shared by every test (controls of :data:`ROLLOUT_STEPS` steps;
-    the README's quickstart compiles the same program)."""
-    from biped_jax.dynamics import hybrid_step
-    return jax.jit(hybrid_step.stance_rollout)
+    """One single-support rollout per backend shared by every test (controls of :data:`ROLLOUT_STEPS`
+    steps; MJX's is the program the README's quickstart compiles): ``rollout(dynamics, q0, qd0,
+    controls)``, jitted for the JAX backends, MuJoCo C's as it is."""
+    from biped_jax.dynamics import interface
+    jitted = jax.jit(interface.stance_rollout)
+
+    def run(dynamics, q0, qd0, controls):
+        numpy_backend = getattr(dynamics, "xp", None) is np
+        return (interface.stance_rollout if numpy_backend else jitted)(dynamics, q0, qd0, controls)
+    return run
 
 
 #: The differentiated rollout: 20 Euler steps of 1.8 ms from a mid-step state (no damping, so the
@@ -61,15 +80,16 @@ def rollout_cost(q, qd, qdd, u, force, foot, foot_velocity):
 def mjx_rollout_gradient(biped12):
     """``(q0, qd0, controls) -> ((cost, trajectory), gradient)`` of :func:`rollout_cost` through MJX's
     rollout (its ground force per step) and swing foot on the 12 kg biped at :data:`GRADIENT_DT`: one compiled
-    program that the finite-difference check (test_hybrid_step) and the closed-form chain's gradient
+    program that the finite-difference check (test_dynamics) and the closed-form chain's gradient
     (test_planar_chain) both use."""
-    from biped_jax.dynamics import hybrid_step
-    pinned = hybrid_step.with_timestep(biped12.pinned, GRADIENT_DT)
+    from biped_jax.dynamics import interface, mjx_biped
+    dynamics = backend(biped12, "mjx", GRADIENT_DT)
+    pinned = dynamics.pinned
 
     def cost(params):
-        trajectory = hybrid_step.stance_rollout(pinned, *params)
+        trajectory = interface.stance_rollout(dynamics, *params)
         q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
-        foot, foot_velocity = hybrid_step.swing_foot(pinned, q[-1], qd[-1])
+        foot, foot_velocity = mjx_biped.swing_foot(pinned, q[-1], qd[-1])
         return rollout_cost(q, qd, qdd, trajectory.u, trajectory.ground_force, foot, foot_velocity), trajectory
     return jax.jit(jax.value_and_grad(cost, has_aux=True))
 
@@ -101,7 +121,7 @@ def paper_solutions(short_solver):
 HEAVY_FIRST = ("mjx_quickstart", "test_gait", "mjx_gradient", "mjx_forward", "test_interior_point", "test_design",
                "test_local_derivatives",
                "donald", "test_cli",
-               "test_humanoid", "test_hybrid_step", "test_codesign", "test_readme",
+               "test_humanoid", "test_dynamics", "test_codesign", "test_readme",
                "test_planar_chain", "test_models")
 
 

@@ -49,6 +49,10 @@ CLI_ROWS = [
     (["solve", "--step-length", "0.7"], "step_length 0.7 m is beyond the legs' reach"),
     (["solve", "--mass-class", "30kg"], "'30kg'"),
     (["solve", "--spans", "6", "--segments", "4"], "segments must divide spans"),
+    (["solve", "--motor", "RE99"], "unknown motor part 'RE99'"),
+    (["solve", "--gearhead", "GP32A-7"], "unknown gearhead part 'GP32A-7'"),
+    (["solve", "--supply-voltage", "24"], "supply_voltage 24.0 applies to a drive"),
+    (["solve", "--motor", "RE25-42V", "--supply-voltage", "-5"], "--supply-voltage must be a number in (0, 10000]"),
 ]
 
 
@@ -222,29 +226,29 @@ def _api_rows():
     """(label, call, text the message must contain); built lazily (the calls import JAX)."""
     import dataclasses
 
-    from biped_jax.codesign import problem as codesign
+    from biped_jax import codesign
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection
-    from biped_jax.dynamics import hybrid_step
+    from biped_jax.dynamics import mjx_biped
     from biped_jax.gait import problem as gait_problem
-    from biped_jax.robots import registry as robots
-    biped, design = hybrid_step.load_planar_biped("12kg"), hybrid_step.planar_design("12kg")
+    from biped_jax.robots import registry
+    biped, design = mjx_biped.load_planar_biped("12kg"), mjx_biped.planar_design("12kg")
     masses = lambda *m: dataclasses.replace(design, link_mass=np.array(m, dtype=float))  # noqa: E731
     motor = drive_model.load_catalogue().motor("RE25-42V")
     reference = codesign.catalogue_design()
     return [
-        ("zero link mass", lambda: hybrid_step.with_design(biped, masses(0, 1, 1, 1, 1)), "link_mass must be positive"),
-        ("NaN link mass", lambda: hybrid_step.with_design(biped, masses(np.nan, 1, 1, 1, 1)),
+        ("zero link mass", lambda: mjx_biped.with_design(biped, masses(0, 1, 1, 1, 1)), "link_mass must be positive"),
+        ("NaN link mass", lambda: mjx_biped.with_design(biped, masses(np.nan, 1, 1, 1, 1)),
          "link_mass must be finite"),
-        ("wrong-length q", lambda: hybrid_step.center_of_mass(biped.pinned, np.zeros(3)), "q must have shape (5,)"),
-        ("wrong-length q (foot)", lambda: hybrid_step.swing_foot(biped.pinned, np.zeros(4), np.zeros(5)), "shape (5,)"),
-        ("negative timestep", lambda: hybrid_step.with_timestep(biped.pinned, -0.005), "got -0.005"),
-        ("zero timestep", lambda: hybrid_step.with_timestep(biped.pinned, 0.0), "timestep must be"),
+        ("wrong-length q", lambda: mjx_biped.center_of_mass(biped.pinned, np.zeros(3)), "q must have shape (5,)"),
+        ("wrong-length q (foot)", lambda: mjx_biped.swing_foot(biped.pinned, np.zeros(4), np.zeros(5)), "shape (5,)"),
+        ("negative timestep", lambda: mjx_biped.with_timestep(biped.pinned, -0.005), "got -0.005"),
+        ("zero timestep", lambda: mjx_biped.with_timestep(biped.pinned, 0.0), "timestep must be"),
         ("negative supply", lambda: drive_model.no_load_speed(motor, -38.0), "supply_voltage must be finite and > 0 V"),
         ("negative ratio", lambda: drive_model.motor_torque(1.0, 1.0, -66.0, 0.7), "gear ratio must be finite"),
         ("efficiency above 1", lambda: drive_model.motor_torque(1.0, 1.0, 66.0, 1.5), "got 1.5"),
         ("ratio far off the catalogue", lambda: codesign.nearest_gearhead(1e9), "far outside the catalogue"),
-        ("MJCF folder", lambda: robots.load_mj_model_from_path(robots.models_dir()), "is a folder"),
+        ("MJCF folder", lambda: registry.load_mj_model_from_path(registry.models_dir()), "is a folder"),
         ("negative speed", lambda: codesign.design_gait_model(reference, -1.0, 20.0), "speed must be positive"),
         ("NaN speed", lambda: codesign.design_gait_model(reference, math.nan, 20.0), "got nan"),
         ("step beyond reach", lambda: codesign.solve_designs(None, [reference], 0.5, 20.0, step_length=5.0),
@@ -301,7 +305,7 @@ def _solver_rows(solver, model):
     """(label, call, error type, text): the solver's batch API, each refused before anything compiles."""
     import jax
 
-    from biped_jax.dynamics import hybrid_step
+    from biped_jax.dynamics import mjx_biped
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.multistart import solve_multistart
     from biped_jax.robots.design import design_layout
@@ -335,12 +339,12 @@ def _solver_rows(solver, model):
         ("gait_model under jit", lambda: jax.jit(lambda v: gait_problem.gait_model("12kg", v, 20.0).speed)(0.5),
          TypeError, "speed is traced"),
         ("solver settings", lambda: type(solver)(settings={"spans": 4}), TypeError, "settings must be a GaitSettings"),
-        ("a design that is not one", lambda: hybrid_step.with_design(solver.biped, 3), TypeError,
+        ("a design that is not one", lambda: mjx_biped.with_design(solver.biped, 3), TypeError,
          "design must be a Design"),
-        ("a biped that is not one", lambda: hybrid_step.with_design(3, model.design), TypeError,
+        ("a biped that is not one", lambda: mjx_biped.with_design(3, model.design), TypeError,
          "biped must be a PlanarBiped"),
         ("a layout of no model", lambda: design_layout(3), TypeError, "mj_model must be a mujoco.MjModel"),
-        ("an unknown mass class", lambda: hybrid_step.load_planar_biped("20kg"), ValueError,
+        ("an unknown mass class", lambda: mjx_biped.load_planar_biped("20kg"), ValueError,
          "unknown mass class '20kg'"),
     ]
 

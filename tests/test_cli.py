@@ -129,13 +129,47 @@ def test_solve_poses_ones_own_problem_and_writes_its_files(tmp_path, monkeypatch
     assert (asked["settings"].spans, asked["settings"].substeps, asked["settings"].segments) == (8, 2, 4)
     assert asked["coarse"].spans == 2 and asked["families"] == study.STUDY_FAMILIES
     results = json.loads((tmp_path / "results.json").read_text())
-    assert results["problem"] == {"mass_class": "12kg", "speed": 0.45, "step_length": 0.22, "power_limit": 15.0}
-    assert results["settings"]["spans"] == 8 and "smallest_power_limit" not in results
+    assert results["problem"] == {"mass_class": "12kg", "speed": 0.45, "step_length": 0.22, "power_limit": 15.0,
+                                  "motor": None, "gearhead": None, "supply_voltage": None}
+    assert results["settings"]["spans"] == 8 and "smallest_power_limit" not in results and "drives" not in results
     assert results["solution"]["cost"] == pytest.approx(solved.cost, rel=1e-12)
     assert results["solution"]["status"] == solved.status
     assert "12kg, 0.45 m/s, L = 0.22 m, M_W = 15 W" in (tmp_path / "tables.md").read_text()
     for name in ("fig2_trajectories.png", "fig3_torque_rpm.png", "trajectories.npz"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+@pytest.mark.xdist_group("test_gait")  # paper_solutions: the gait tests' fixture, on their worker
+def test_solve_with_a_drive_carries_it_and_checks_it_per_joint(tmp_path, monkeypatch, paper_solutions):
+    """With ``--motor``/``--gearhead``/``--supply-voltage`` the problem is the co-design's gait problem
+    of that catalogue drive (its masses carried, its winding and voltage in the drives), and results
+    and tables say per joint whether the drive passes the catalogue check on the gait (here a stand-in
+    gait: M2's, whose own check is in test_codesign)."""
+    from biped_jax import codesign
+    from biped_jax.drives import model as drive_model
+    from biped_jax.gait import multistart
+    asked = {}
+
+    def stand_in(fine, names, models, families, coarse, progress=None, finished=None):
+        asked.update(model=models[0])
+        return [dataclasses.replace(paper_solutions[1], name=names[0])]
+    monkeypatch.setattr(multistart, "solve_multistart", stand_in)
+    assert cli.main(["solve", "--out", str(tmp_path), "--motor", "RE25-48V", "--gearhead", "GP32A-51",
+                     "--supply-voltage", "30", "--spans", "8", "--substeps", "2", "--segments", "4"]) == 0
+    drives, catalogue = asked["model"].drives, drive_model.load_catalogue()
+    np.testing.assert_allclose(drives.ratio, catalogue.gearhead("GP32A-51").ratio)
+    np.testing.assert_allclose(drives.torque_constant, catalogue.motor("RE25-48V").torque_constant)
+    np.testing.assert_allclose(drives.supply_voltage, 30.0)
+    design = codesign.catalogue_design("RE25-48V", "GP32A-51", "12kg", supply_voltage=30.0)
+    expected = codesign.design_gait_model(design, 0.555, 20.0)
+    np.testing.assert_allclose(asked["model"].design.drive_mass, expected.design.drive_mass)
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert results["problem"]["motor"] == "RE25-48V" and results["drives"]["supply_voltage_V"] == 30.0
+    joints = results["drives"]["joints"]
+    assert [v["joint"] for v in joints] == ["H1", "K1", "H2", "K2"]
+    assert results["drives"]["passes_catalogue_check"] == all(v["feasible"] for v in joints)
+    assert all(v["gearhead"] == "GP32A-51" and v["reason"] for v in joints)
+    assert "## The drive's catalogue check per joint" in (tmp_path / "tables.md").read_text()
 
 
 @pytest.mark.slow

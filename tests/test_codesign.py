@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from biped_jax.codesign import problem as codesign
+from biped_jax import codesign
 from biped_jax.drives import model as drive_model
 from biped_jax.drives.model import GCM2
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import stack_tree
 from biped_jax.optim import nlp
@@ -26,8 +26,8 @@ def test_armature_is_ratio_squared_times_rotor_and_gear_inertia(biped12):
     dof_armature at the four actuated joints, pinned and floating."""
     design = codesign.catalogue_design("RE25-42V", "GP32A-66.22")
     expected = 66.22**2 * (10.7 + 0.7) * GCM2
-    biped = hybrid_step.with_design(biped12, codesign.robot_design(design))
-    for model, layout in zip((biped.pinned, biped.floating), hybrid_step.planar_layouts()):
+    biped = mjx_biped.with_design(biped12, codesign.robot_design(design))
+    for model, layout in zip((biped.pinned, biped.floating), mjx_biped.planar_layouts()):
         np.testing.assert_allclose(np.asarray(model.dof_armature)[layout.dof_ids], expected, rtol=1e-12)
     assert float(design.total_mass) == pytest.approx(12.0, abs=0.01)  # the structure is built for it
 
@@ -157,6 +157,8 @@ def test_the_projected_step_keeps_every_design_within_its_bounds():
     by the rate, the split by SPLIT_STEP_SCALE times it); with a large one it stops on its bound; a
     variable with low = high (the second design's own windings and split, held) never moves."""
     import optax
+
+    from biped_jax.codesign import optimise
     theta = np.stack([codesign.design_variables(codesign.catalogue_design())] * 2)
     theta[0, codesign.PLACEMENT] = 0.5  # inside its bounds (a catalogue design's drives sit at the knees)
     theta = jnp.asarray(theta)
@@ -170,7 +172,7 @@ def test_the_projected_step_keeps_every_design_within_its_bounds():
         state = jax.vmap(adam.init)(theta)
         state.hyperparams["learning_rate"] = jnp.full(2, rate)
         for sign in (1.0, -1.0):
-            trial, _ = codesign._projected_step(adam, jnp.full((2, 11), 1e6 * sign), state, theta, jnp.asarray(rates),
+            trial, _ = optimise._projected_step(adam, jnp.full((2, 11), 1e6 * sign), state, theta, jnp.asarray(rates),
                                                 jnp.asarray(low), jnp.asarray(high))
             trial = np.asarray(trial)
             assert np.all(trial >= low) and np.all(trial <= high)
@@ -372,7 +374,7 @@ def test_the_verdicts_per_joint_agree_with_the_check_of_all_joints_together(pape
     catalogue = drive_model.load_catalogue()
     solution = paper_solutions[1]  # M2
     for motor, head in (("RE25-42V", "GP32A-66.22"), ("RE25-118754", "GP32A-51"), ("RE25-48V", "GP32A-190")):
-        verdicts = codesign_study.drive_verdicts((motor,) * 4, (head,) * 4, solution, 38.0, catalogue)
+        verdicts = selection.joint_verdicts((motor,) * 4, (head,) * 4, solution, 38.0, catalogue)
         trajectory = solution.trajectory
         whole = selection.check_drive(selection.JointWorkspace(
             np.asarray(trajectory.t), np.asarray(trajectory.joint_speed), np.asarray(trajectory.u),

@@ -7,14 +7,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import interface
+from biped_jax.dynamics import mjx_biped
 from biped_jax.robots import design as design_lib
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 from biped_jax.robots.mjcf import planar_pinned_xml
 from biped_jax.robots.specs import PlanarBipedSpec
 
-mjx = robots.import_mjx()
+mjx = registry.import_mjx()
 
 Q = jnp.array([0.2, 0.3, -0.1, 0.4, 0.6])
 QD = jnp.array([1.0, -0.5, 0.3, 2.0, -1.0])
@@ -26,12 +26,12 @@ FILE_ROUNDING = 1e-9
 def test_18kg_design_on_the_12kg_model_equals_the_18kg_file(biped12, biped18):
     """Masses (and the inertias that follow) of the 18 kg file applied as arrays to the 12 kg model
     give the 18 kg file's mass matrix, bias forces and accelerations in both variants."""
-    heavy = hybrid_step.with_design(biped12, hybrid_step.planar_design("18kg"))
-    acceleration = jax.jit(hybrid_step.stance_acceleration)
+    heavy = mjx_biped.with_design(biped12, mjx_biped.planar_design("18kg"))
+    acceleration = jax.jit(mjx_biped.stance_acceleration)
     np.testing.assert_allclose(acceleration(heavy.pinned, Q, QD, U),
                                acceleration(biped18.pinned, Q, QD, U), rtol=FILE_ROUNDING)
-    qf, qfd = jax.jit(impact.pinned_to_floating)(biped18.pinned, Q, QD)
-    mass_matrix = jax.jit(hybrid_step.mass_matrix)
+    qf, qfd = jax.jit(mjx_biped.pinned_to_floating)(biped18.pinned, Q, QD)
+    mass_matrix = jax.jit(mjx_biped.mass_matrix)
     np.testing.assert_allclose(mass_matrix(heavy.floating, qf), mass_matrix(biped18.floating, qf),
                                rtol=FILE_ROUNDING)
     np.testing.assert_allclose(heavy.pinned.body_subtreemass, biped18.pinned.body_subtreemass,
@@ -42,7 +42,7 @@ def test_arbitrary_design_matches_a_freshly_compiled_mjcf():
     """Armature, damping and unequal link masses against MuJoCo C compiling a file with those numbers."""
     spec = PlanarBipedSpec(torso_mass=9.0, thigh_mass=1.5, shank_mass=0.8)
     fresh = mujoco.MjModel.from_xml_string(planar_pinned_xml(spec, "fresh"))
-    layout = hybrid_step.planar_layouts()[0]
+    layout = mjx_biped.planar_layouts()[0]
     armature = np.array([0.01, 0.02, 0.03, 0.04])
     damping = np.array([0.1, 0.0, 0.2, 0.3])
     fresh.dof_armature[layout.dof_ids] = armature
@@ -54,9 +54,9 @@ def test_arbitrary_design_matches_a_freshly_compiled_mjcf():
     design = design_lib.Design(link_mass=jnp.array([9.0, 1.5, 0.8, 1.5, 0.8]),
                                joint_armature=jnp.asarray(armature), joint_damping=jnp.asarray(damping),
                                drive_mass=jnp.zeros(4))
-    model = design_lib.apply_design(robots.load_mjx_model("biped5_pinned_12kg"), layout,
+    model = design_lib.apply_design(registry.load_mjx_model("biped5_pinned_12kg"), layout,
                                     design_lib.check_design(design, layout))
-    np.testing.assert_allclose(jax.jit(hybrid_step.stance_acceleration)(model, Q, QD, U), data.qacc, rtol=1e-10)
+    np.testing.assert_allclose(jax.jit(mjx_biped.stance_acceleration)(model, Q, QD, U), data.qacc, rtol=1e-10)
     np.testing.assert_allclose(model.body_subtreemass, fresh.body_subtreemass, rtol=1e-12)
 
 
@@ -66,12 +66,12 @@ def test_changing_the_design_does_not_recompile_and_vmap_runs_many_designs(biped
     @jax.jit
     def end_state(design, controls):
         traces.append(1)  # runs only while tracing
-        biped = hybrid_step.with_design(biped12, design)
-        trajectory = hybrid_step.stance_rollout(biped.pinned, Q, QD, controls)
+        biped = mjx_biped.with_design(biped12, design)
+        trajectory = interface.stance_rollout(interface.stance_dynamics(biped, "mjx"), Q, QD, controls)
         return trajectory.q[-1]
 
     controls = jnp.zeros((20, 4))
-    light, heavy = hybrid_step.planar_design("12kg"), hybrid_step.planar_design("18kg")
+    light, heavy = mjx_biped.planar_design("12kg"), mjx_biped.planar_design("18kg")
     end_light = end_state(light, controls)
     end_heavy = end_state(heavy, controls)
     assert len(traces) == 1
@@ -103,13 +103,13 @@ def test_drive_masses_match_point_masses_compiled_by_mujoco(knee_offsets):
     data.qpos[:], data.qvel[:], data.ctrl[:] = Q, QD, U
     mujoco.mj_forward(fresh, data)
 
-    layout = hybrid_step.planar_layouts()[0]
+    layout = mjx_biped.planar_layouts()[0]
     design = design_lib.Design(link_mass=jnp.array([9.0, 1.5, 0.8, 1.5, 0.8]), joint_armature=jnp.zeros(4),
                                joint_damping=jnp.zeros(4), drive_mass=jnp.asarray(drive_mass),
                                drive_offset=jnp.array([0.0, up1, 0.0, up2]))
-    model = design_lib.apply_design(robots.load_mjx_model("biped5_pinned_12kg"), layout,
+    model = design_lib.apply_design(registry.load_mjx_model("biped5_pinned_12kg"), layout,
                                     design_lib.check_design(design, layout))
-    np.testing.assert_allclose(jax.jit(hybrid_step.stance_acceleration)(model, Q, QD, U), data.qacc, rtol=1e-9)
+    np.testing.assert_allclose(jax.jit(mjx_biped.stance_acceleration)(model, Q, QD, U), data.qacc, rtol=1e-9)
     np.testing.assert_allclose(model.body_subtreemass[1], fresh.body_subtreemass[1], rtol=1e-12)
     assert float(design.total_mass) == pytest.approx(9.0 + 2 * 1.5 + 2 * 0.8 + drive_mass.sum())
 
@@ -125,12 +125,12 @@ def test_drive_masses_match_point_masses_compiled_by_mujoco(knee_offsets):
 ])
 def test_bad_designs_are_rejected_naming_the_value(field, value, message):
     import dataclasses
-    layout = hybrid_step.planar_layouts()[0]
-    design = dataclasses.replace(hybrid_step.planar_design("12kg"), **{field: value})
+    layout = mjx_biped.planar_layouts()[0]
+    design = dataclasses.replace(mjx_biped.planar_design("12kg"), **{field: value})
     with pytest.raises(ValueError, match=message):
         design_lib.check_design(design, layout)
 
 
 def test_unknown_link_name_is_rejected():
     with pytest.raises(ValueError, match="'tail'"):
-        design_lib.design_layout(robots.load_mj_model("biped5_pinned_12kg"), ("torso", "tail"), ())
+        design_lib.design_layout(registry.load_mj_model("biped5_pinned_12kg"), ("torso", "tail"), ())

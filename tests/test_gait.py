@@ -11,7 +11,7 @@ import pytest
 from conftest import short_settings
 
 from biped_jax.drives.model import RPM
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
 from biped_jax.robots import planar_biped
 from biped_jax.gait import report as gait_report
@@ -126,8 +126,8 @@ def test_prescribed_joints_follow_the_spline_and_the_torques_give_its_accelerati
     np.testing.assert_allclose(trajectory.qd[:, a], dq / step_time, atol=1e-10)
     np.testing.assert_allclose(trajectory.qdd[:, a], ddq / step_time**2, atol=1e-8)
     np.testing.assert_allclose(trajectory.touchdown.q[a], trajectory.q[0, a], atol=1e-12)
-    pinned = hybrid_step.with_design(solver.biped, model.design).pinned
-    forward = jax.jit(jax.vmap(hybrid_step.stance_acceleration, (None, 0, 0, 0)))
+    pinned = mjx_biped.with_design(solver.biped, model.design).pinned
+    forward = jax.jit(jax.vmap(mjx_biped.stance_acceleration, (None, 0, 0, 0)))
     qdd = forward(pinned, trajectory.q, trajectory.qd, trajectory.u)
     np.testing.assert_allclose(qdd, trajectory.qdd, rtol=1e-9, atol=1e-8)
 
@@ -142,8 +142,8 @@ def test_start_state_and_first_sample_are_consistent(solver, heuristic):
     np.testing.assert_allclose(trajectory.q[0], np.r_[x[0], q0[[1, 0, 2, 3]]], atol=1e-12)
     np.testing.assert_allclose(trajectory.qd[0, planar_biped.ACTUATED_INDEX], dq0 / step_time, atol=1e-12)
     assert trajectory.qd[0, 0] == pytest.approx(float(x[1]))
-    pinned = hybrid_step.with_design(solver.biped, model.design).pinned
-    force = jax.jit(hybrid_step.ground_reaction)(pinned, trajectory.q[0], trajectory.qd[0], trajectory.qdd[0])
+    pinned = mjx_biped.with_design(solver.biped, model.design).pinned
+    force = jax.jit(mjx_biped.ground_reaction)(pinned, trajectory.q[0], trajectory.qd[0], trajectory.qdd[0])
     np.testing.assert_allclose(trajectory.ground_force[0], force, rtol=1e-9, atol=1e-8)
 
 

@@ -11,11 +11,10 @@ import pytest
 from conftest import short_settings
 from test_humanoid_sagittal import _sagittal_equivalent
 
-from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
 from biped_jax import humanoid
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 from biped_jax.robots.specs import PLANAR_SPECS
 
 pytestmark = pytest.mark.slow  # MJX humanoid rollouts: minutes on the 2-core CPU
@@ -40,7 +39,7 @@ def test_planarising_constraint_keeps_the_sagittal_dynamics(planarised):
     """The planar base only removes the lateral translation, roll and yaw: at the same pose the mass
     matrix and gravity of the remaining coordinates equal the free-base humanoid's."""
     model, _ = planarised
-    free = robots.load_mj_model("humanoid16_12kg")
+    free = registry.load_mj_model("humanoid16_12kg")
     rng = np.random.default_rng(0)
     joints = rng.normal(scale=0.3, size=16)
     x, z, pitch = 0.1, 0.3, 0.2
@@ -62,14 +61,14 @@ def test_impact_map_on_the_humanoid_equals_the_optimisers(planarised):
     """With the held joints locked, the humanoid's rigid impact is the optimiser's impact map of the
     planar biped whose links are the humanoid's composite bodies."""
     model, layout = planarised
-    planar = _sagittal_equivalent(robots.load_mj_model("humanoid16_12kg"))
-    floating = robots.put_mjx_model(planar)
+    planar = _sagittal_equivalent(registry.load_mj_model("humanoid16_12kg"))
+    floating = registry.put_mjx_model(planar)
     qf = np.array([0.05, 0.27, 0.15, -0.45, 0.3, 0.2, 0.25])
     qfd = np.array([0.6, -0.2, -0.4, 1.5, -2.0, -3.0, 1.0])
     # put the landing foot (leg 2) on the ground
     # compiled (MJX run op by op compiles every operation alone)
-    qf[1] -= float(jax.jit(hybrid_step.site_position, static_argnums=2)(floating, jnp.asarray(qf), "foot2")[2])
-    expected_after, expected_impulse = (np.asarray(a) for a in jax.jit(impact.impact_map)(
+    qf[1] -= float(jax.jit(mjx_biped.site_position, static_argnums=2)(floating, jnp.asarray(qf), "foot2")[2])
+    expected_after, expected_impulse = (np.asarray(a) for a in jax.jit(mjx_biped.impact_map)(
         floating, jnp.asarray(qf), jnp.asarray(qfd)))
     qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
     columns = humanoid.sagittal_columns(layout, 0)
@@ -189,12 +188,12 @@ def test_isolated_touchdown_balances_momentum_and_stops_the_foot(planarised):
     in the air; gravity and damping cancel against the twin without that contact), the ground pushes
     up and back on a foot moving down and forward, and the foot comes to rest within the window."""
     model, layout = planarised
-    planar = _sagittal_equivalent(robots.load_mj_model("humanoid16_12kg"))
-    floating = robots.put_mjx_model(planar)
+    planar = _sagittal_equivalent(registry.load_mj_model("humanoid16_12kg"))
+    floating = registry.put_mjx_model(planar)
     qf = np.array([0.05, 0.27, 0.0, 0.3, 1.2, -0.3, 0.1])  # leg 2 reaching ahead, leg 1 folded up
     qfd = np.array([0.6, -0.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # the whole robot moving forward and down
-    qf[1] -= float(hybrid_step.site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
-    assert float(hybrid_step.site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
+    qf[1] -= float(mjx_biped.site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
+    assert float(mjx_biped.site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
     qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
     columns = humanoid.sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd

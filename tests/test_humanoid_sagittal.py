@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 
 # Lumped into each planar link: the humanoid's arms and head ride on the torso, the foot on the shank.
 GROUPS = {"torso": ("torso", "arm_l", "arm_r"), "thigh1": ("thigh_l",), "shank1": ("shank_l", "foot_l"),
@@ -35,7 +35,7 @@ def _composite(model, data, bodies):
 
 def _sagittal_equivalent(humanoid):
     """The planar floating model with the humanoid's composite links."""
-    planar = robots.load_mj_model("biped5_floating_12kg")
+    planar = registry.load_mj_model("biped5_floating_12kg")
     data = mujoco.MjData(humanoid)
     mujoco.mj_kinematics(humanoid, data)
     for link, bodies in GROUPS.items():
@@ -48,7 +48,7 @@ def _sagittal_equivalent(humanoid):
 
 @pytest.mark.parametrize("name", ["humanoid16_12kg", "humanoid16_18kg", "humanoid16_flatfoot_12kg"])
 def test_humanoid_sagittal_accelerations_equal_the_planar_model(name):
-    humanoid = robots.load_mj_model(name)
+    humanoid = registry.load_mj_model(name)
     planar = _sagittal_equivalent(humanoid)
     rng = np.random.default_rng(4)
     dof = {j: humanoid.jnt_dofadr[mujoco.mj_name2id(humanoid, mujoco.mjtObj.mjOBJ_JOINT, j)]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from biped_jax.optim import exact_derivatives as ed
-from biped_jax.optim import interior_point as ip
+from biped_jax.optim import interior_point
 from biped_jax.optim import nlp
 
 #: Optima to this relative accuracy: the solver's KKT tolerance is 1e-8.
@@ -29,7 +29,7 @@ def hs071(x, target):
 @pytest.fixture(scope="module")
 def hs071_result():
     starts = jnp.array([[1.0, 5.0, 5.0, 1.0], [2.0, 2.0, 2.0, 2.0], [1.5, 4.0, 4.0, 1.5]])
-    return ip.solve(nlp.ConstrainedProblem(hs071), starts, jnp.full(3, 40.0))
+    return interior_point.solve(nlp.ConstrainedProblem(hs071), starts, jnp.full(3, 40.0))
 
 
 def test_hs071_reaches_its_known_optimum_and_multipliers(hs071_result):
@@ -48,7 +48,7 @@ def test_hs071_reaches_its_known_optimum_and_multipliers(hs071_result):
 
 def test_the_envelope_gradient_of_hs071_is_its_multiplier(hs071_result):
     # d f* / d target = -lambda (f + lambda (sum x^2 - target)): the multiplier is the sensitivity
-    bigger = ip.solve(nlp.ConstrainedProblem(hs071), hs071_result.x[:1], jnp.array([40.01]))
+    bigger = interior_point.solve(nlp.ConstrainedProblem(hs071), hs071_result.x[:1], jnp.array([40.01]))
     slope = (bigger.cost[0] - hs071_result.cost[0]) / 0.01
     assert slope == pytest.approx(-hs071_result.multipliers_eq[0, 0], rel=1e-3)
 
@@ -62,7 +62,7 @@ def equality_qp(x, data):
 def test_an_equality_constrained_problem_has_its_closed_form_solution():
     rng = np.random.default_rng(0)
     a, matrix, b = rng.normal(size=(2, 5)), rng.normal(size=(2, 2, 5)), rng.normal(size=(2, 2))
-    result = ip.solve(nlp.ConstrainedProblem(equality_qp), np.zeros((2, 5)), (a, matrix, b))
+    result = interior_point.solve(nlp.ConstrainedProblem(equality_qp), np.zeros((2, 5)), (a, matrix, b))
     for k in range(2):
         multiplier = np.linalg.solve(matrix[k] @ matrix[k].T, matrix[k] @ a[k] - b[k])
         np.testing.assert_allclose(result.x[k], a[k] - matrix[k].T @ multiplier, atol=1e-8)
@@ -78,7 +78,7 @@ def active_and_inactive(x, _):
 
 
 def test_active_and_inactive_inequalities():
-    result = ip.solve(nlp.ConstrainedProblem(active_and_inactive), jnp.array([[5.0, -3.0]]), jnp.zeros(1))
+    result = interior_point.solve(nlp.ConstrainedProblem(active_and_inactive), jnp.array([[5.0, -3.0]]), jnp.zeros(1))
     assert result.status == ["converged"]
     np.testing.assert_allclose(result.x[0], [0.5, 1.5], atol=1e-8)
     np.testing.assert_allclose(result.multipliers_in[0], [1.0, 0.0], atol=1e-6)
@@ -93,7 +93,7 @@ def degenerate(x, _):
 
 
 def test_a_degenerate_problem_converges_to_its_optimum():
-    result = ip.solve(nlp.ConstrainedProblem(degenerate), jnp.array([[3.0, 2.0]]), jnp.zeros(1))
+    result = interior_point.solve(nlp.ConstrainedProblem(degenerate), jnp.array([[3.0, 2.0]]), jnp.zeros(1))
     assert result.status == ["converged"]
     assert result.cost[0] == pytest.approx(0.5, abs=1e-8)
     # without strict complementarity an interior point's x converges like sqrt(mu) (mu ends at 1e-9)
@@ -108,8 +108,8 @@ def infeasible(x, _):
 
 
 def test_an_infeasible_problem_says_so_with_its_violation():
-    result = ip.solve(nlp.ConstrainedProblem(infeasible), jnp.array([[0.5, 0.5]]), jnp.zeros(1),
-                      ip.InteriorPointOptions(max_iterations=100))
+    result = interior_point.solve(nlp.ConstrainedProblem(infeasible), jnp.array([[0.5, 0.5]]), jnp.zeros(1),
+                      interior_point.InteriorPointOptions(max_iterations=100))
     assert result.status == ["infeasible"]
     assert result.violation[0] > 0.1
     assert np.all(np.isfinite(result.x)) and np.isfinite(result.cost[0])
@@ -117,11 +117,11 @@ def test_an_infeasible_problem_says_so_with_its_violation():
 
 def test_batches_of_other_problems_and_sizes_share_one_program():
     from biped_jax.report.compile_profile import profile_compiles
-    compiled = ip.compile_problem(nlp.ConstrainedProblem(hs071))
+    compiled = interior_point.compile_problem(nlp.ConstrainedProblem(hs071))
     batches = ([40.0, 38.0, 42.0, 41.0, 39.0], [39.0, 41.0, 40.5, 38.5, 41.5, 40.0], [40.0, 37.0, 43.0, 39.5, 42.0])
     with profile_compiles() as profile:
         for targets in batches:
-            result = ip.solve(compiled.problem, np.tile([1.0, 5.0, 5.0, 1.0], (len(targets), 1)),
+            result = interior_point.solve(compiled.problem, np.tile([1.0, 5.0, 5.0, 1.0], (len(targets), 1)),
                               jnp.asarray(targets), compiled=compiled)
             assert result.status == ["converged"] * len(targets)
             assert result.x.shape == (len(targets), 4)
@@ -133,22 +133,22 @@ def test_batches_of_other_problems_and_sizes_share_one_program():
 
 
 def test_batches_are_padded_to_few_sizes():
-    sizes = [ip.padded_batch(b) for b in range(1, 50)]
+    sizes = [interior_point.padded_batch(b) for b in range(1, 50)]
     assert sorted(set(sizes)) == [1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64]
     assert all(b <= size <= 1.5 * b for b, size in zip(range(1, 50), sizes))
 
 
 def test_options_name_a_bad_value():
     with pytest.raises(ValueError, match="tolerance must be a positive number, got -1"):
-        ip.InteriorPointOptions(tolerance=-1.0)
+        interior_point.InteriorPointOptions(tolerance=-1.0)
     with pytest.raises(ValueError, match="max_iterations must be a positive integer, got 0"):
-        ip.InteriorPointOptions(max_iterations=0)
+        interior_point.InteriorPointOptions(max_iterations=0)
     with pytest.raises(ValueError, match=r"x0 must have shape \(B, n\)"):
-        ip.solve(nlp.ConstrainedProblem(hs071), jnp.ones(4), jnp.full(1, 40.0))
+        interior_point.solve(nlp.ConstrainedProblem(hs071), jnp.ones(4), jnp.full(1, 40.0))
     with pytest.raises(ValueError, match=r"quorum must be a fraction in \(0, 1\], got 1.5"):
-        ip.InteriorPointOptions(quorum=1.5)
+        interior_point.InteriorPointOptions(quorum=1.5)
     with pytest.raises(ValueError, match="patience must be a non-negative integer, got -1"):
-        ip.InteriorPointOptions(patience=-1)
+        interior_point.InteriorPointOptions(patience=-1)
 
 
 def test_a_batch_stops_a_few_iterations_after_its_quorum_has_finished():
@@ -157,11 +157,11 @@ def test_a_batch_stops_a_few_iterations_after_its_quorum_has_finished():
     violation), the others are exactly as without the rule; the rule shares the compiled program."""
     optimum = [1.0, 4.74299964, 3.82114998, 1.37940829]
     starts = jnp.array([optimum, optimum, optimum, [3.0, 0.5, 4.8, 4.5]])
-    compiled = ip.compile_problem(nlp.ConstrainedProblem(hs071))
-    options = ip.InteriorPointOptions(block=1, mu_initial=1e-6)
-    waiting = ip.solve(compiled.problem, starts, jnp.full(4, 40.0), options, compiled=compiled)
+    compiled = interior_point.compile_problem(nlp.ConstrainedProblem(hs071))
+    options = interior_point.InteriorPointOptions(block=1, mu_initial=1e-6)
+    waiting = interior_point.solve(compiled.problem, starts, jnp.full(4, 40.0), options, compiled=compiled)
     assert waiting.status == ["converged"] * 4 and waiting.outer_iterations[3] > 9
-    early = ip.solve(compiled.problem, starts, jnp.full(4, 40.0),
+    early = interior_point.solve(compiled.problem, starts, jnp.full(4, 40.0),
                      dataclasses.replace(options, quorum=0.75, patience=2), compiled=compiled)
     finished = int(np.max(waiting.outer_iterations[:3]))
     assert early.status[:3] == ["converged"] * 3 and early.status[3] in ("iteration limit", "infeasible")
@@ -259,21 +259,22 @@ def test_gaits_converge_to_kkt_points_checked_with_central_differences(interior_
 
 def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
     problem = nlp.ConstrainedProblem(hs071)
-    compiled = ip.compile_problem(problem)
+    compiled = interior_point.compile_problem(problem)
     starts, targets = np.tile([1.0, 5.0, 5.0, 1.0], (5, 1)), jnp.asarray([40.0, 38.0, 42.0, 41.0, 39.0])
-    whole = ip.solve(problem, starts, targets, compiled=compiled)
-    needed = ip.program_memory(compiled, ed.dense_structure(4, 10), jnp.asarray(starts), targets,
+    whole = interior_point.solve(problem, starts, targets, compiled=compiled)
+    needed = interior_point.program_memory(compiled, ed.dense_structure(4, 10), jnp.asarray(starts), targets,
                                (jnp.zeros((5, 1)), jnp.zeros((5, 9))))
     assert needed > 0
     assert list(compiled.memory.values()) == [needed]  # asked once per batch shape, not once per solve
     said = []
-    chunked = ip.solve(problem, starts, targets, compiled=compiled, memory_budget=0.5 * needed, say=said.append)
+    chunked = interior_point.solve(problem, starts, targets, compiled=compiled, memory_budget=0.5 * needed,
+                                   say=said.append)
     assert len(said) == 1 and "solving it in chunks of" in said[0], said
     assert chunked.status == whole.status and chunked.x.shape == (5, 4)
     np.testing.assert_allclose(chunked.x, whole.x, atol=1e-10)
     np.testing.assert_allclose(chunked.multipliers_in, whole.multipliers_in, atol=1e-9)
     with pytest.raises(MemoryError, match="one problem's program needs about"):
-        ip.solve(problem, starts, targets, compiled=compiled, memory_budget=1.0)
+        interior_point.solve(problem, starts, targets, compiled=compiled, memory_budget=1.0)
 
 
 def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_gaits):

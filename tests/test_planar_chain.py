@@ -1,6 +1,6 @@
-"""The closed-form planar-chain dynamics against MJX: every quantity at random states of a design with
-armature and damping through the gait rollout's two strategies, the touchdown, a rollout and its
-gradient, and bad models."""
+"""The closed-form planar-chain dynamics against MJX and MuJoCo C: every quantity the interface reads
+(:mod:`biped_jax.dynamics.interface`) at random states of a design with armature and damping, from each
+backend, the touchdown, a rollout and its gradient, and bad models."""
 
 import dataclasses
 import functools
@@ -11,27 +11,25 @@ import numpy as np
 import pytest
 from conftest import GRADIENT_DT, GRADIENT_START, GRADIENT_STEPS, rollout_cost
 
-from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step
-from biped_jax.dynamics import planar_chain, stance
+from biped_jax.dynamics import interface, mjx_biped, planar_chain
 from biped_jax.gait import problem as gait_problem
 from biped_jax.robots import planar_biped
 
-#: xdist groups: see tests/test_hybrid_step.py.
+#: xdist groups: see tests/test_dynamics.py.
 
-mjx = hybrid_step.mjx
+mjx = mjx_biped.mjx
 
 
 @pytest.fixture(scope="module")
 def designed_biped(biped12):
     """The 12 kg biped with a design unlike the file's: other masses, drive masses at the joints,
     armature and damping, so every parameter path is exercised."""
-    design = hybrid_step.planar_design("12kg")
+    design = mjx_biped.planar_design("12kg")
     design = dataclasses.replace(design, link_mass=design.link_mass * jnp.array([0.8, 1.1, 1.3, 0.9, 1.2]),
                                  joint_armature=jnp.array([0.01, 0.02, 0.015, 0.03]),
                                  joint_damping=jnp.array([0.1, 0.2, 0.3, 0.4]),
                                  drive_mass=jnp.array([0.3, 0.2, 0.3, 0.2]))
-    return hybrid_step.with_design(biped12, design)
+    return mjx_biped.with_design(biped12, design)
 
 
 @pytest.fixture(scope="module")
@@ -48,11 +46,13 @@ def test_structure_of_the_pinned_biped(biped12):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_every_quantity_equals_mjx(designed_biped, seed):
-    """The gait rollout's two strategies (:mod:`biped_jax.dynamics.stance`: what the rollout reads,
-    method by method) agree at random states: mass matrix, bias force, stance force, gait sites; and the
-    chain's forward dynamics and mechanical energy are MJX's."""
+    """The backends (:mod:`biped_jax.dynamics.interface`: what the gait rollout reads, method by method)
+    agree at random states: mass matrix, bias force, stance force, gait sites, the chain's and MuJoCo C's
+    against MJX's (MuJoCo C's model carrying the design's arrays); and the chain's forward dynamics and
+    mechanical energy are MJX's."""
     designed = designed_biped.pinned
-    chain_dynamics, mjx_dynamics = stance.ChainDynamics(designed_biped), stance.MjxDynamics(designed_biped)
+    chain_dynamics, mjx_dynamics = (interface.stance_dynamics(designed_biped, name) for name in ("chain", "mjx"))
+    c_dynamics = interface.stance_dynamics(designed_biped, "mujoco")
     rng = np.random.default_rng(seed)
     q, qd, u = (jnp.asarray(rng.normal(size=5)), jnp.asarray(3 * rng.normal(size=5)),
                 jnp.asarray(5 * rng.normal(size=4)))
@@ -69,43 +69,50 @@ def test_every_quantity_equals_mjx(designed_biped, seed):
     assert float(jnp.linalg.norm(reference_force)) > 1.0
     np.testing.assert_allclose(force, reference_force, atol=1e-9)
     np.testing.assert_allclose(sites, reference_sites, atol=1e-14)
+    c_mass, c_bias, c_data = c_dynamics.terms(np.asarray(q), np.asarray(qd))
+    np.testing.assert_allclose(c_mass, reference_mass, atol=1e-12)
+    np.testing.assert_allclose(c_bias, reference_bias, atol=1e-10)
+    c_force, c_sites = c_dynamics.outputs(q, qd, np.asarray(qdd), c_data)
+    np.testing.assert_allclose(c_force, reference_force, atol=1e-9)
+    np.testing.assert_allclose(c_sites, reference_sites, atol=1e-14)
     np.testing.assert_allclose(planar_chain.mechanical_energy(chain_dynamics.chain, designed, state, qd),
-                               hybrid_step.mechanical_energy(designed, q, qd), rtol=1e-12)
-    foot1 = mjx.name2id(designed, hybrid_step.robots.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
+                               mjx_biped.mechanical_energy(designed, q, qd), rtol=1e-12)
+    foot1 = mjx.name2id(designed, mjx_biped.registry.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
     np.testing.assert_allclose(planar_chain.site_positions(chain_dynamics.chain, designed, state, ("foot1",))[0],
                                data.site_xpos[foot1][jnp.array([0, 2])], atol=1e-14)
 
 
 @pytest.fixture(scope="module")
 def landings(designed_biped):
-    """(closed form, MJX) of the touchdown and the swing foot's motion, each one compiled program (MJX
-    run op by op compiles every operation alone); MJX's touchdown is the program of every test's."""
-    chain = planar_chain.PlanarChain.from_model(designed_biped.pinned)
-
-    @jax.jit
-    def closed_form(pinned, q, qd):
-        return (impact.chain_touchdown(chain, pinned, q, qd),
-                planar_chain.site_motion(chain, pinned, q, qd, "foot2"))
-    return closed_form, jax.jit(impact.touchdown), jax.jit(hybrid_step.swing_foot)
+    """(touchdown, swing foot's motion) -> of each backend at a state: one compiled program for each JAX
+    backend (MJX run op by op compiles every operation alone; its touchdown is the program of every
+    test's), MuJoCo C's as it is."""
+    def both(dynamics, q, qd):
+        return interface.touchdown(dynamics, q, qd), dynamics.swing_foot(q, qd)
+    jitted = jax.jit(both)
+    return {name: functools.partial(both if name == "mujoco" else jitted,
+                                    interface.stance_dynamics(designed_biped, name))
+            for name in ("chain", "mjx", "mujoco")}
 
 
 @pytest.mark.parametrize("seed", [0, 1])
 @pytest.mark.xdist_group("mjx_quickstart")
-def test_touchdown_and_swing_foot_equal_mjx(designed_biped, landings, seed):
-    """The impact in the pinned chain's coordinates extended by the root's translation is MJX's impact
-    on the floating model: every field of the touchdown (impulse, velocities, relabelled state), and
-    the swing foot's motion, at random pre-impact states of a design with armature."""
-    closed_form, touchdown, swing_foot = landings
+@pytest.mark.parametrize("name", ["chain", "mujoco"])
+def test_touchdown_and_swing_foot_equal_mjx(landings, seed, name):
+    """The impact in the pinned chain's coordinates extended by the root's translation, and MuJoCo C's
+    on its floating model, are MJX's impact on the floating model: every field of the touchdown
+    (impulse, velocities, relabelled state), and the swing foot's motion, at random pre-impact states
+    of a design with armature."""
     rng = np.random.default_rng(seed)
-    q = jnp.array([0.2, 0.3, -0.4, 0.5, 0.1]) + 0.1 * jnp.asarray(rng.normal(size=5))
-    qd = jnp.asarray(2 * rng.normal(size=5))
-    mine, motion = closed_form(designed_biped.pinned, q, qd)
-    reference = touchdown(designed_biped, q, qd)
+    q = np.array([0.2, 0.3, -0.4, 0.5, 0.1]) + 0.1 * rng.normal(size=5)
+    qd = 2 * rng.normal(size=5)
+    mine, motion = landings[name](q, qd)
+    reference, reference_motion = landings["mjx"](jnp.asarray(q), jnp.asarray(qd))
     assert np.linalg.norm(reference.impulse) > 1.0  # a real impact
     for field in dataclasses.fields(reference):
         np.testing.assert_allclose(getattr(mine, field.name), getattr(reference, field.name),
                                    rtol=1e-11, atol=1e-12, err_msg=field.name)
-    for closed, theirs in zip(motion, swing_foot(designed_biped.pinned, q, qd)):
+    for closed, theirs in zip(motion, reference_motion):
         np.testing.assert_allclose(closed, theirs, atol=1e-13)
 
 
@@ -115,13 +122,14 @@ def test_rollout_and_its_gradient_equal_mjx(biped12, mjx_rollout_gradient):
     """20 Euler steps of 1.8 ms (no damping: MJX's implicit damping would differ by O(dt^2)), and the
     gradient of a cost of the whole rollout (its ground force per step) and the swing foot at its end with
     respect to the start state and the torques (MJX's program is the one
-    test_hybrid_step checks against finite differences)."""
+    test_dynamics checks against finite differences)."""
     chain = planar_chain.PlanarChain.from_model(biped12.pinned)
-    pinned = hybrid_step.with_timestep(biped12.pinned, GRADIENT_DT)
+    pinned = mjx_biped.with_timestep(biped12.pinned, GRADIENT_DT)
+    dynamics = planar_chain.ChainDynamics.of(pinned, chain)
     params = (*map(jnp.asarray, GRADIENT_START), jnp.asarray(np.random.default_rng(3).normal(size=(GRADIENT_STEPS, 4))))
 
     def chain_cost(params):
-        trajectory = planar_chain.stance_rollout(chain, pinned, *params)
+        trajectory = interface.stance_rollout(dynamics, *params)
         q, qd, qdd = trajectory.q, trajectory.qd, trajectory.qdd
         foot, foot_velocity = planar_chain.site_motion(chain, pinned, q[-1], qd[-1], "foot2")
         return rollout_cost(q, qd, qdd, trajectory.u, trajectory.ground_force, foot, foot_velocity), (
@@ -157,10 +165,12 @@ def test_unknown_dynamics_is_rejected():
         gait_problem.GaitSettings(dynamics="rk4")
     with pytest.raises(SystemExit):
         cli.main(["codesign", "--dynamics", "rk4"])
-    from biped_jax.dynamics import stance
-    assert tuple(stance.DYNAMICS) == gait_problem.DYNAMICS  # one strategy per name the settings accept
+    # every traceable backend is a name the settings accept, MuJoCo C's is not (it does not trace)
+    assert interface.TRACEABLE == gait_problem.DYNAMICS and set(interface.DYNAMICS) == {"chain", "mjx", "mujoco"}
     with pytest.raises(ValueError, match="dynamics must be one of .* got 'rk4'"):
-        stance.stance_dynamics(None, "rk4")
+        interface.stance_dynamics(None, "rk4")
+    with pytest.raises(ValueError, match="dynamics must be one of .* got 'mujoco'"):
+        gait_problem.GaitSettings(dynamics="mujoco")
 
 
 def test_a_model_that_is_not_a_planar_chain_is_rejected(biped12):

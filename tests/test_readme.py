@@ -13,7 +13,7 @@ def _python_blocks():
     return re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
 
 
-@pytest.mark.xdist_group("mjx_quickstart")  # the rollout and touchdown programs of tests/test_hybrid_step.py
+@pytest.mark.xdist_group("mjx_quickstart")  # the rollout and touchdown programs of tests/test_dynamics.py
 def test_quickstart_runs_and_gives_physical_numbers():
     namespace = {}
     exec(compile(_python_blocks()[0], "README quickstart", "exec"), namespace)

@@ -27,7 +27,7 @@ import numpy as np
 
 from biped_jax import checks
 from biped_jax.drives import model as drive_model
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import stack_tree
 from biped_jax.robots.design import Design, check_design
@@ -85,7 +85,7 @@ def robot_design(design: DriveDesign) -> Design:
                     joint_damping=jnp.zeros_like(design.ratio),
                     drive_mass=design.motor_mass + design.gear_mass, drive_offset=design.drive_offset)
     if checks.concrete(design):
-        check_design(result, hybrid_step.planar_layouts()[0])
+        check_design(result, mjx_biped.planar_layouts()[0])
     return result
 
 
@@ -113,7 +113,7 @@ def design_gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) 
 def _structure_of(mass_class: str, drive_mass: float) -> np.ndarray:
     """The mass class's link masses with four drives of ``drive_mass`` taken out of the links that
     carry them, kg, (5,): the robot weighs its nominal mass with those drives fitted."""
-    structure = np.asarray(hybrid_step.planar_design(mass_class).link_mass, dtype=float).copy()
+    structure = np.asarray(mjx_biped.planar_design(mass_class).link_mass, dtype=float).copy()
     for mount in PLANAR_DRIVE_MOUNTS:
         structure[PLANAR_LINKS.index(mount)] -= drive_mass
     if np.any(structure <= 0):

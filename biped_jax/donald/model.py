@@ -27,11 +27,11 @@ import mujoco
 import numpy as np
 
 from biped_jax.drives import model as drive_model
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 from biped_jax.robots.mjcf import DONALD_ACTUATED_JOINTS
 from biped_jax.robots.specs import DonaldSpec
 
-mjx = robots.import_mjx()
+mjx = registry.import_mjx()
 
 ANKLE1, HIP1, HIP2, ANKLE2, PENDULUM = range(5)
 #: Supply voltage of DONALD's drives, V (ours: the paper gives none; the 24 V winding at its nominal).
@@ -153,12 +153,12 @@ def reference(poses: jax.Array, times: jax.Array, t: jax.Array) -> tuple[jax.Arr
 
 def load_donald(drive: drive_model.JointDrives | None = None, spec: DonaldSpec | None = None):
     """(MuJoCo model, MJX model) of DONALD with the drive's reflected inertia as joint armature."""
-    mj_model = robots.load_mj_model("donald") if spec is None else mujoco.MjModel.from_xml_string(
+    mj_model = registry.load_mj_model("donald") if spec is None else mujoco.MjModel.from_xml_string(
         __import__("biped_jax.robots.mjcf", fromlist=["donald_xml"]).donald_xml(spec))
     drive = drive or donald_drive()
     dofs = [mj_model.joint(name).dofadr[0] for name in DONALD_ACTUATED_JOINTS]
     mj_model.dof_armature[dofs] = float(drive.reflected_inertia)
-    return mj_model, robots.put_mjx_model(mj_model)
+    return mj_model, registry.put_mjx_model(mj_model)
 
 
 @jax.tree_util.register_dataclass

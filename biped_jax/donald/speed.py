@@ -69,8 +69,8 @@ def differentiable_donald(drive: drive_model.JointDrives):
     (docs/dynamics.md, "Through contact"). The walk is re-checked with the full solver after optimising."""
     mj_model, _ = donald.load_donald(drive)
     mj_model.opt.iterations = 1
-    from biped_jax.robots import registry as robots
-    return mj_model, robots.put_mjx_model(mj_model)
+    from biped_jax.robots import registry
+    return mj_model, registry.put_mjx_model(mj_model)
 
 
 def gait_from_vector(z: jax.Array, base: donald.DonaldGait = donald.DEFAULT_GAIT) -> donald.DonaldGait:

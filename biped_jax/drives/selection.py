@@ -18,6 +18,7 @@ from biped_jax import checks
 from biped_jax.drives import model as drive_model
 from biped_jax.drives.model import MNM, RPM
 from biped_jax.report import outputs
+from biped_jax.robots.planar_biped import ACTUATED
 
 IMPACT_WINDOW = 0.05
 
@@ -129,6 +130,26 @@ def check_drive(workspace: JointWorkspace, motor: drive_model.Motor, gear: drive
             "joule_energy_J": joule, "mass_kg": motor.mass + gear.mass,
             "min_voltage_margin_V": float(margin.min()), "rms_motor_torque_mNm": float(rms_motor.max() / MNM),
             "max_motor_rpm": float(np.abs(motor_speed).max() / RPM)}
+
+
+def joint_verdicts(motors, heads, solution, supply_voltage: float, catalogue: drive_model.Catalogue) -> list[dict]:
+    """Per joint (H1, K1, H2, K2) the catalogue check of its own motor and gearhead (names, four of each)
+    on a solved gait (:func:`check_drive` on that joint's samples: speed-torque line, thermal, gear and
+    speed limits) and the thermal margin, 1 - RMS motor torque / nominal torque."""
+    trajectory = solution.trajectory
+    t = np.asarray(trajectory.t)
+    speed, torque = np.asarray(trajectory.joint_speed), np.asarray(trajectory.u)
+    verdicts = []
+    for j, (motor, head) in enumerate(zip(motors, heads)):
+        workspace = JointWorkspace(t, speed[:, [j]], torque[:, [j]], solution.step_time_s)
+        motor_data = catalogue.motor(motor)
+        check = check_drive(workspace, motor_data, catalogue.gearhead(head), supply_voltage)
+        verdicts.append({"joint": ACTUATED[j], "motor": motor, "gearhead": head,
+                         "feasible": check["feasible"], "feasible_without_thermal": check["feasible_without_thermal"],
+                         "reason": check["reason"],
+                         "thermal_margin": 1.0 - check["rms_motor_torque_mNm"] * MNM / motor_data.nominal_torque,
+                         "min_voltage_margin_V": check["min_voltage_margin_V"]})
+    return verdicts
 
 
 def select_drive(workspaces: list[JointWorkspace], catalogue: drive_model.Catalogue,

@@ -1,9 +1,13 @@
-"""Touchdown of the sagittal five-link biped: the perfectly inelastic impact of the swing foot, solved
-on the floating-base model (MJX) or in the pinned chain's coordinates extended by the root's translation
-(closed form), followed by relabelling legs 1 and 2: the next step's start state.
+"""Touchdown of the sagittal five-link biped, written once for every backend: the perfectly inelastic
+impact of the swing foot, then relabelling legs 1 and 2 (the next step's start state).
 
-Coordinates as :mod:`biped_jax.dynamics.hybrid_step`: pinned q (5,), floating q = (x, z, pitch, hip1,
-knee1, hip2, knee2) (7,). Every function is pure, differentiable and batchable.
+A backend (:mod:`biped_jax.dynamics.interface`) poses the impact as an :class:`ImpactSystem` in
+coordinates of its choice (MJX and MuJoCo C: the floating-base model's; the closed-form chain: the
+pinned chain's angles extended by its root's translation): the inertia, the two feet's Jacobians, the
+velocity before, and the map of those coordinates' velocities to the floating base's. :func:`resolve`
+solves it and relabels. Coordinates: pinned q (5,) as :mod:`biped_jax.dynamics.mjx_biped`, floating
+q = (x, z, pitch, hip1, knee1, hip2, knee2) (7,). Every function is pure; with ``xp = jax.numpy``
+differentiable and batchable.
 """
 
 from __future__ import annotations
@@ -13,9 +17,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
-from biped_jax.dynamics import planar_chain
-from biped_jax.dynamics.hybrid_step import PlanarBiped, check_shape, mass_matrix, site_position
-from biped_jax.robots.planar_biped import FLOATING_TO_PINNED, N_PINNED, RELABEL
+from biped_jax.robots.planar_biped import FLOATING_TO_PINNED, RELABEL
 
 
 @jax.tree_util.register_dataclass
@@ -41,75 +43,45 @@ class Touchdown:
     floating_q: jax.Array
 
 
-def pinned_to_floating(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Floating-base state (shape (7,) each) of a single-support state, stance foot at the origin."""
-    return jax.jvp(lambda q_: _floating_coordinates(site_position(pinned, q_, "hip")[jnp.array([0, 2])], q_),
-                   (q,), (qd,))
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ImpactSystem:
+    """The impact of the swing foot as a backend poses it, in n impact coordinates of its choice.
+
+    Attributes:
+      mass: the inertia in those coordinates, shape (n, n) (armature included).
+      landing: d(swing foot x, z)/d(coordinates), shape (2, n).
+      leaving: d(stance foot x, z)/d(coordinates), shape (2, n).
+      velocity: the coordinates' velocity just before the impact, shape (n,).
+      floating_q: the floating-base configuration at impact, shape (7,).
+      to_floating: the floating base's rates per coordinate velocity, shape (7, n); None where the
+        coordinates are the floating base's (n = 7).
+    """
+
+    mass: jax.Array
+    landing: jax.Array
+    leaving: jax.Array
+    velocity: jax.Array
+    floating_q: jax.Array
+    to_floating: jax.Array | None = None
 
 
-def _floating_coordinates(hip: jax.Array, q: jax.Array) -> jax.Array:
-    """Floating-base coordinates (7,) from the hip's world (x, z) and the pinned angles q (5,)."""
+def floating_coordinates(hip, q, xp=jnp):
+    """Floating-base coordinates (7,) from the hip's world (x, z) and the pinned angles q (5,); ``xp``:
+    ``jax.numpy`` or ``numpy``."""
     stance, knee1, hip1, hip2, knee2 = q
-    return jnp.stack([hip[0], hip[1], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
+    return xp.stack([hip[0], hip[1], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
 
 
-def floating_to_pinned(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
+def floating_to_pinned(qf, qfd, xp=jnp):
     """Pinned coordinates (shape (5,) each) of a floating state whose leg 1 is on the ground."""
-    transform = jnp.asarray(FLOATING_TO_PINNED, qf.dtype)
+    transform = xp.asarray(FLOATING_TO_PINNED, qf.dtype)
     return transform @ qf, transform @ qfd
 
 
-def relabel(qf: jax.Array, qfd: jax.Array) -> tuple[jax.Array, jax.Array]:
+def relabel(qf, qfd):
     """Swaps legs 1 and 2 of a floating-base state."""
     return qf[RELABEL], qfd[RELABEL]
-
-
-def foot_jacobian(floating, qf: jax.Array, foot: str) -> jax.Array:
-    """d(foot x, z)/dq of the floating model, shape (2, 7)."""
-    return jax.jacfwd(lambda q_: site_position(floating, q_, foot)[jnp.array([0, 2])])(qf)
-
-
-def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Perfectly inelastic impact of foot 2 with the ground.
-
-    Solves M (qd+ - qd-) = J2^T Lambda with J2 qd+ = 0 (the landing foot at rest afterwards).
-
-    Returns:
-      (qd+ shape (7,), Lambda = ground impulse on foot 2 (x, z), shape (2,), N s).
-    """
-    return inelastic_impact(mass_matrix(floating, qf), foot_jacobian(floating, qf, "foot2"), qfd_before)
-
-
-def chain_touchdown(chain: planar_chain.PlanarChain, pinned, q: jax.Array, qd: jax.Array) -> Touchdown:
-    """:func:`touchdown` by the closed-form planar chain of the pinned model (no MJX).
-
-    The floating model's impact in other coordinates: the pinned chain's angles extended by the
-    translation (x, z) of its root, so every point moves as r = p + r_pinned(q) and the inertia is
-    [[m I, sum_i m_i Jc_i], [sum_i m_i Jc_i^T, M_pinned]] (armature included); the same mechanics, so
-    the same impulse and velocities to rounding (``tests/test_planar_chain.py``). Why: MJX's impact
-    map on the floating model was two thirds of the gait rollout's compile time (measured 2026-12-02
-    in 48 knot spans: 18.5 s of 27 s alone). ``chain`` is the structure of ``pinned``
-    (:class:`~biped_jax.dynamics.planar_chain.PlanarChain`); q, qd as :func:`touchdown`."""
-    q = check_shape("q", q, (N_PINNED,))
-    qd = check_shape("qd", qd, (N_PINNED,))
-
-    def to_floating(q_):  # as pinned_to_floating
-        return _floating_coordinates(planar_chain.site_motion(chain, pinned, q_, jnp.zeros_like(q_), "hip")[0], q_)
-
-    qf, qfd_before = jax.jvp(to_floating, (q,), (qd,))
-    state = planar_chain.kinematics(chain, pinned, q, qd)
-    mass = pinned.body_mass[1:]
-    momentum = jnp.einsum("i,iaj->aj", mass, state.com_jacobian)  # (2, 5): linear momentum per rate
-    inertia = jnp.block([[jnp.sum(mass) * jnp.eye(2, dtype=q.dtype), momentum],
-                         [momentum.T, planar_chain.mass_matrix(chain, pinned, state)]])
-    landing = jnp.concatenate([jnp.eye(2, dtype=q.dtype), planar_chain.site_jacobian(chain, pinned, q, "foot2")], 1)
-    after, impulse = inelastic_impact(inertia, landing, jnp.concatenate([jnp.zeros(2, q.dtype), qd]))
-    root_velocity, rates = after[:2], after[2:]
-    qfd_after = jax.jvp(to_floating, (q,), (rates,))[1] + jnp.concatenate([root_velocity, jnp.zeros(5, q.dtype)])
-    old_foot_velocity = root_velocity + planar_chain.site_jacobian(chain, pinned, q, "foot1") @ rates
-    q_next, qd_next = floating_to_pinned(*relabel(qf, qfd_after))
-    return Touchdown(q=q_next, qd=qd_next, impulse=impulse, old_stance_foot_velocity=old_foot_velocity,
-                     floating_qd_before=qfd_before, floating_qd_after=qfd_after, floating_q=qf)
 
 
 def inelastic_impact(mass, jac, qd_before, xp=jnp):
@@ -125,19 +97,17 @@ def inelastic_impact(mass, jac, qd_before, xp=jnp):
     return solution[:n], solution[n:]
 
 
-def touchdown(biped: PlanarBiped, q: jax.Array, qd: jax.Array) -> Touchdown:
-    """Impact of the swing foot and relabelling: the start state of the next step.
-
-    Args:
-      biped: the design's models.
-      q, qd: single-support state just before impact, shape (5,) each.
-    """
-    q = check_shape("q", q, (N_PINNED,))
-    qd = check_shape("qd", qd, (N_PINNED,))
-    qf, qfd_before = pinned_to_floating(biped.pinned, q, qd)
-    qfd_after, impulse = impact_map(biped.floating, qf, qfd_before)
-    old_foot_velocity = foot_jacobian(biped.floating, qf, "foot1") @ qfd_after
-    q_next, qd_next = floating_to_pinned(*relabel(qf, qfd_after))
-    return Touchdown(q=q_next, qd=qd_next, impulse=impulse,
-                     old_stance_foot_velocity=old_foot_velocity, floating_qd_before=qfd_before,
-                     floating_qd_after=qfd_after, floating_q=qf)
+def resolve(system: ImpactSystem, xp=jnp) -> Touchdown:
+    """The touchdown of an impact ``system``: the velocity after and the impulse
+    (:func:`inelastic_impact`), the floating base's velocities across the impact, the old stance
+    foot's velocity, and the relabelled pinned start of the next step. ``xp``: ``jax.numpy`` or
+    ``numpy`` (the MuJoCo C backend)."""
+    after, impulse = inelastic_impact(system.mass, system.landing, system.velocity, xp)
+    if system.to_floating is None:
+        before_floating, after_floating = system.velocity, after
+    else:
+        before_floating, after_floating = system.to_floating @ system.velocity, system.to_floating @ after
+    q_next, qd_next = floating_to_pinned(*relabel(system.floating_q, after_floating), xp=xp)
+    return Touchdown(q=q_next, qd=qd_next, impulse=impulse, old_stance_foot_velocity=system.leaving @ after,
+                     floating_qd_before=before_floating, floating_qd_after=after_floating,
+                     floating_q=system.floating_q)

@@ -29,6 +29,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from biped_jax.dynamics import impact
+from biped_jax.robots.planar_biped import GAIT_SITES
+
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class PlanarChain:
@@ -52,6 +55,19 @@ class PlanarChain:
     @property
     def size(self) -> int:
         return len(self.parent)
+
+    def _key(self) -> tuple:
+        return (self.ancestors.tobytes(), self.parent.tobytes(), self.axis_sign.tobytes(),
+                self.actuated_dof.tobytes(), tuple(sorted(self.site_body.items())),
+                tuple(sorted(self.site_index.items())))
+
+    # equal by content: a backend carries the chain as static pytree data, so that chains read anew
+    # from the same model share compiled programs
+    def __eq__(self, other) -> bool:
+        return isinstance(other, PlanarChain) and self._key() == other._key()
+
+    def __hash__(self) -> int:
+        return hash(self._key())
 
     @classmethod
     def from_model(cls, model) -> "PlanarChain":
@@ -103,27 +119,6 @@ def _rotate(theta: jax.Array, v: jax.Array) -> jax.Array:
 
 def _xz(a: jax.Array) -> jax.Array:
     return a[..., jnp.array([0, 2])]
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class StanceTrajectory:
-    """A single-support rollout of T steps (either dynamics: :func:`stance_rollout` here,
-    :func:`biped_jax.dynamics.hybrid_step.stance_rollout` in MJX).
-
-    Attributes:
-      q: pinned coordinates, shape (T + 1, 5), rad.
-      qd: their rates, shape (T + 1, 5), rad/s.
-      qdd: accelerations at steps 0..T-1, shape (T, 5), rad/s^2.
-      u: joint torques applied at steps 0..T-1, shape (T, 4), N m.
-      ground_force: stance-foot ground reaction (F_x, F_z) at steps 0..T-1, shape (T, 2), N.
-    """
-
-    q: jax.Array
-    qd: jax.Array
-    qdd: jax.Array
-    u: jax.Array
-    ground_force: jax.Array
 
 
 @jax.tree_util.register_dataclass
@@ -195,7 +190,7 @@ def bias_force(chain: PlanarChain, model, state: ChainState, qd: jax.Array) -> j
 
 def mechanical_energy(chain: PlanarChain, model, state: ChainState, qd: jax.Array) -> jax.Array:
     """Kinetic plus gravitational potential energy of the chain at ``state`` (of (q, qd)), J (scalar):
-    :func:`biped_jax.dynamics.hybrid_step.mechanical_energy` in closed form."""
+    :func:`biped_jax.dynamics.mjx_biped.mechanical_energy` in closed form."""
     potential = -jnp.sum(model.body_mass[1:] * (state.com @ _gravity(model)))
     return 0.5 * qd @ mass_matrix(chain, model, state) @ qd + potential
 
@@ -251,26 +246,75 @@ def euler(q: jax.Array, qd: jax.Array, qdd: jax.Array, dt) -> tuple[jax.Array, j
 
 def stance_step(chain: PlanarChain, model, state: tuple[jax.Array, jax.Array], u: jax.Array):
     """One step of single support under actuator torques u, semi-implicit Euler with
-    ``model.opt.timestep`` (as MJX's ``euler`` without damping): ``state`` = (q, qd), (n,) each.
-    Returns (the next state, (qdd (n,), the root (stance) force (2,))), as
-    :func:`biped_jax.dynamics.hybrid_step.stance_step` does in MJX."""
+    ``model.opt.timestep`` (as MJX's ``euler``; explicit damping: MJX's with ``EULERDAMP`` disabled,
+    identical without damping): ``state`` = (q, qd), (n,) each. Returns (the next state, (qdd (n,),
+    the root (stance) force (2,))), as :meth:`biped_jax.dynamics.mjx_biped.MjxDynamics.step` does in MJX."""
     q, qd = state
     qdd, kin = forward_dynamics(chain, model, q, qd, u)
     force = root_force(chain, model, kin, qdd)
     return euler(q, qd, qdd, model.opt.timestep), (qdd, force)
 
 
-def stance_rollout(chain: PlanarChain, model, q0: jax.Array, qd0: jax.Array, controls: jax.Array):
-    """Single support under zero-order-hold torques, semi-implicit Euler as MJX's ``euler`` with
-    ``model.opt.timestep`` (explicit damping: MJX's with ``EULERDAMP`` disabled, identical without
-    damping). q0, qd0 (n,); controls (T, n_actuators). Returns a :class:`StanceTrajectory` (the root's
-    force as the ground force), as MJX's rollout does."""
+def impact_system(chain: PlanarChain, model, q: jax.Array, qd: jax.Array) -> impact.ImpactSystem:
+    """The touchdown's impact in the pinned chain's angles extended by the translation (x, z) of its
+    root: every point moves as r = p + r_pinned(q), so the inertia is
+    [[m I, sum_i m_i Jc_i], [sum_i m_i Jc_i^T, M_pinned]] (armature included); the floating model's
+    mechanics in other coordinates (the same impulse and velocities to rounding,
+    ``tests/test_dynamics.py``). Why: MJX's impact map on the floating model was two thirds of the gait
+    rollout's compile time (18.5 s of 27 s in 48 knot spans)."""
 
-    @jax.checkpoint
-    def step(state, u):
-        state, (qdd, force) = stance_step(chain, model, state, u)
-        return state, (*state, qdd, force)
+    def to_floating(q_):  # as mjx_biped.pinned_to_floating
+        return impact.floating_coordinates(site_motion(chain, model, q_, jnp.zeros_like(q_), "hip")[0], q_)
 
-    _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
-    return StanceTrajectory(q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]), qdd=qdd,
-                            u=controls, ground_force=force)
+    state = kinematics(chain, model, q, qd)
+    mass = model.body_mass[1:]
+    momentum = jnp.einsum("i,iaj->aj", mass, state.com_jacobian)  # (2, n): linear momentum per rate
+    translation = jnp.eye(2, dtype=q.dtype)
+    inertia = jnp.block([[jnp.sum(mass) * translation, momentum],
+                         [momentum.T, mass_matrix(chain, model, state)]])
+    # the floating base's rates: the root's translation moves the hip alike, the angles map as positions do
+    to_floating_rates = jnp.concatenate([jnp.concatenate([translation, jnp.zeros((5, 2), q.dtype)]),
+                                         jax.jacfwd(to_floating)(q)], axis=1)
+    return impact.ImpactSystem(
+        mass=inertia, landing=jnp.concatenate([translation, site_jacobian(chain, model, q, "foot2")], 1),
+        leaving=jnp.concatenate([translation, site_jacobian(chain, model, q, "foot1")], 1),
+        velocity=jnp.concatenate([jnp.zeros(2, q.dtype), qd]), floating_q=to_floating(q),
+        to_floating=to_floating_rates)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class ChainDynamics:
+    """The closed-form backend of :class:`biped_jax.dynamics.interface.StanceDynamics` (a pytree: the
+    pinned model's parameters as data, its structure static; batchable over designs).
+
+    Attributes:
+      chain: the structure of ``pinned`` (every planar biped design has the same).
+      pinned: the design's pinned ``mjx.Model`` (its parameters are read at each call).
+    """
+
+    pinned: object
+    chain: PlanarChain = dataclasses.field(metadata={"static": True})
+
+    @classmethod
+    def of(cls, pinned, chain: PlanarChain | None = None) -> "ChainDynamics":
+        """``chain``: the structure of ``pinned`` when the model is traced (read from the model
+        otherwise, which needs its structure arrays concrete)."""
+        return cls(pinned=pinned, chain=PlanarChain.from_model(pinned) if chain is None else chain)
+
+    def terms(self, q, qd):
+        state = kinematics(self.chain, self.pinned, q, qd)
+        return mass_matrix(self.chain, self.pinned, state), bias_force(self.chain, self.pinned, state, qd), state
+
+    def outputs(self, q, qd, qdd, state):
+        force = root_force(self.chain, self.pinned, state, qdd)
+        return force, site_positions(self.chain, self.pinned, state, GAIT_SITES)
+
+    def swing_foot(self, q, qd):
+        return site_motion(self.chain, self.pinned, q, qd, "foot2")
+
+    def step(self, state, u):
+        return stance_step(self.chain, self.pinned, state, u)
+
+    def impact_system(self, q, qd) -> impact.ImpactSystem:
+        return impact_system(self.chain, self.pinned, q, qd)

@@ -16,9 +16,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.dynamics import planar_chain
-from biped_jax.dynamics import stance
+from biped_jax.dynamics import interface
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
 
@@ -86,7 +86,7 @@ def reference(gait: HeuristicGait, start, end, stance, stance_rate, stance_start
     return angle, rate
 
 
-def simulate_step(biped: hybrid_step.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
+def simulate_step(biped: mjx_biped.PlanarBiped, gait: HeuristicGait, chain: planar_chain.PlanarChain | None = None):
     """Runs the step; returns (trajectory, dt, touchdown index or -1, Touchdown at that index, swing
     foot positions and velocities).
 
@@ -97,8 +97,8 @@ def simulate_step(biped: hybrid_step.PlanarBiped, gait: HeuristicGait, chain: pl
     """
     q0, qd0, end = start_state(gait)
     dt = 1.5 * gait.step_time / gait.steps
-    timed = dataclasses.replace(biped, pinned=hybrid_step.with_timestep(biped.pinned, dt))
-    dynamics = stance.MjxDynamics(timed) if chain is None else stance.ChainDynamics(timed, chain)
+    timed = dataclasses.replace(biped, pinned=mjx_biped.with_timestep(biped.pinned, dt))
+    dynamics = mjx_biped.MjxDynamics.of(timed) if chain is None else planar_chain.ChainDynamics.of(timed.pinned, chain)
     actuated = jnp.asarray(ACTUATED_INDEX)  # (H1, K1, H2, K2) in pinned coordinates
     start = q0[actuated]
 
@@ -106,11 +106,11 @@ def simulate_step(biped: hybrid_step.PlanarBiped, gait: HeuristicGait, chain: pl
         q, qd = state
         angle, rate = reference(gait, start, end, q[0], qd[0], q0[0])
         u = gait.stiffness * (angle - q[actuated]) + gait.damping * (rate - qd[actuated])
-        state, (qdd, force) = stance.stance_step(dynamics, state, u)
+        state, (qdd, force) = interface.stance_step(dynamics, state, u)
         return state, (*state, qdd, u, force)
 
     _, (q, qd, qdd, u, force) = jax.lax.scan(step, (q0, qd0), None, length=gait.steps)
-    trajectory = hybrid_step.StanceTrajectory(q=jnp.concatenate([q0[None], q]),
+    trajectory = interface.StanceTrajectory(q=jnp.concatenate([q0[None], q]),
                                      qd=jnp.concatenate([qd0[None], qd]), qdd=qdd, u=u,
                                      ground_force=force)
     foot, foot_velocity = jax.vmap(dynamics.swing_foot)(trajectory.q, trajectory.qd)
@@ -118,5 +118,5 @@ def simulate_step(biped: hybrid_step.PlanarBiped, gait: HeuristicGait, chain: pl
     crossing = after_mid_step & (foot[:, 1] <= 0.0) & (foot_velocity[:, 1] < 0.0)
     index = jnp.where(jnp.any(crossing), jnp.argmax(crossing), -1)
     safe = jnp.maximum(index, 0)
-    impact = dynamics.touchdown(trajectory.q[safe], trajectory.qd[safe])
+    impact = interface.touchdown(dynamics, trajectory.q[safe], trajectory.qd[safe])
     return trajectory, dt, index, impact, foot, foot_velocity

@@ -1,5 +1,5 @@
 """The rollout of one step: the stance angle's zero dynamics by Runge-Kutta under the prescribed
-joints (closed-form chain or MJX, a small strategy object), torques, forces, the touchdown."""
+joints (a backend of :mod:`biped_jax.dynamics.interface`), torques, forces, the touchdown."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step
-from biped_jax.dynamics.stance import stance_dynamics
+from biped_jax.dynamics import mjx_biped
+from biped_jax.dynamics.interface import stance_dynamics, touchdown
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
 from biped_jax.gait.splines import grid, reference, simpson_weights, stance_nodes
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
@@ -83,11 +83,11 @@ def time_scale(step_time):
     return jnp.stack([1.0, 1.0 / step_time, 1.0 / step_time**2])[:, None, None]
 
 
-def simulate(x: jax.Array, model: GaitModel, biped: hybrid_step.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
+def simulate(x: jax.Array, model: GaitModel, biped: mjx_biped.PlanarBiped, settings: GaitSettings) -> GaitTrajectory:
     """One rollout of the step (pure; vmap over x and model): the prescribed joints, the stance
     angle's zero dynamics by RK4 from every shooting node over its segment (all segments at once),
     the outputs at every grid point (a segment's first point takes its node's state)."""
-    biped = hybrid_step.with_design(biped, model.design)
+    biped = mjx_biped.with_design(biped, model.design)
     dynamics = stance_dynamics(biped, settings.dynamics)
     step_time = model.step_length / model.speed
     segments, per_segment = settings.segments, settings.steps // settings.segments
@@ -113,5 +113,5 @@ def simulate(x: jax.Array, model: GaitModel, biped: hybrid_step.PlanarBiped, set
     return GaitTrajectory(
         t=jnp.asarray(s) * step_time, weights=jnp.asarray(simpson_weights(settings)) * step_time,
         q=q, qd=qd, qdd=qdd, u=u, ground_force=force, swing_foot=positions[:, 0], heights=positions[:, 1:, 1],
-        touchdown=dynamics.touchdown(q[-1], qd[-1]), swing_foot_velocity=foot_velocity,
+        touchdown=touchdown(dynamics, q[-1], qd[-1]), swing_foot_velocity=foot_velocity,
         continuity=after[:-1, -1] - nodes[1:])

@@ -17,8 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.drives import model as drive_model
-from biped_jax.dynamics import hybrid_step
-from biped_jax.dynamics.stance import stance_dynamics
+from biped_jax.dynamics import mjx_biped
+from biped_jax.dynamics.interface import stance_dynamics, touchdown
 from biped_jax.gait import constraints
 from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
 from biped_jax.gait.settings import GaitSettings, with_limit_fraction
@@ -70,7 +70,7 @@ class _Split:
     """Builds the split for one settings, biped and problem kind ("energy", or "limit": a last column t
     with the power limit t M_W0)."""
 
-    def __init__(self, biped: hybrid_step.PlanarBiped, settings: GaitSettings, kind: str = "energy"):
+    def __init__(self, biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy"):
         if settings.dynamics not in ("chain", "mjx"):
             raise ValueError(f"unknown dynamics {settings.dynamics!r}")
         self.biped, self.settings, self.kind = biped, settings, kind
@@ -139,7 +139,7 @@ class _Split:
     def _samples(self, local, data, model):
         """The segment's samples: (q, qd, qdd, u, force, positions) at its per + 1 grid points and the
         state integrated to its end (2,)."""
-        biped = hybrid_step.with_design(self.biped, model.design)
+        biped = mjx_biped.with_design(self.biped, model.design)
         dynamics = stance_dynamics(biped, self.settings.dynamics)
         step_time = model.step_length / model.speed
         node, points = local[:2], local[2:2 + 4 * self.window].reshape(self.window, 4)
@@ -187,7 +187,7 @@ class _Split:
                    for value, ref in ((start[0], ref0[0]), (start[1], ref0[1])))
         _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
         ends = {"q0": q0, "qd0": qd0, "swing_foot_end": positions[-1, 0], "swing_foot_velocity": foot_velocity,
-                "touchdown": dynamics.touchdown(q[-1], qd[-1])}
+                "touchdown": touchdown(dynamics, q[-1], qd[-1])}
         groups = constraints.boundary_groups(ends, model, self.settings)
         h = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_EQUALITIES])
         g = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_INEQUALITIES])
@@ -203,7 +203,7 @@ SAMPLE_SHAPES = {"swing_foot_height": (1, 1), "heights": (1, 3), "knee_range": (
                  "friction_cone": (2, 1), "torque_bound": (2, 4), "power_limit": (2, 4), "voltage": (2, 4)}
 
 
-def local_problem(biped: hybrid_step.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
+def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
     """The split of the gait problem (``kind`` "energy": x, params a GaitModel; "limit": (x, t) with the
     power limit t M_W0 and the objective t + energy_weight J, params
     :class:`~biped_jax.gait.settings.LimitParams`) whose rows, in the problem's order, are those of

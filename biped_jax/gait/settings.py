@@ -12,14 +12,14 @@ import numpy as np
 
 from biped_jax import checks
 from biped_jax.drives import model as drive_model
-from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import impact, interface
+from biped_jax.dynamics import mjx_biped
 from biped_jax.robots.design import Design
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 from biped_jax.robots.specs import PLANAR_SPECS
 
-#: The single-support dynamics a rollout can use (:class:`GaitSettings`).
-DYNAMICS = ("chain", "mjx")
+#: The single-support dynamics a rollout can use (:class:`GaitSettings`): the traceable backends.
+DYNAMICS = interface.TRACEABLE
 
 #: Friction coefficient standing for "no friction limit" (Kelly's benchmark), the largest accepted.
 NO_FRICTION_LIMIT = 1e3
@@ -149,7 +149,7 @@ def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> 
 
 def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
     """A problem of docs/gait-problem.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with
-    ideal drives (the paper's problem; ``biped_jax.codesign.problem.design_gait_model`` fits real ones);
+    ideal drives (the paper's problem; ``biped_jax.codesign.design_gait_model`` fits real ones);
     raises ValueError naming a non-positive speed, limit or length, or a step beyond the legs' reach.
     Numbers may be Python, numpy or 0-d JAX arrays (concrete: a traced value raises TypeError)."""
     for name, value, unit in (("speed", speed, "m/s"), ("power_limit", power_limit, "W"),
@@ -157,13 +157,13 @@ def gait_model(mass_class: str, speed: float, power_limit: float, step_length: f
         if isinstance(value, jax.core.Tracer):
             raise TypeError(f"{name} is traced (gait_model was called inside jit, vmap or grad): the model is "
                             "built and checked from concrete numbers; build it outside and pass it in, or use "
-                            "biped_jax.codesign.problem.design_gait_model, which traces")
+                            "biped_jax.codesign.design_gait_model, which traces")
         if isinstance(value, bool) or not (isinstance(value, (int, float, np.floating, np.integer))
                                            or (hasattr(value, "shape") and np.shape(value) == ()
                                                and (np.issubdtype(np.asarray(value).dtype, np.floating)
                                                     or np.issubdtype(np.asarray(value).dtype, np.integer)))):
             raise ValueError(f"{name} must be a number ({unit}), got {value!r}")
-    design = hybrid_step.planar_design(mass_class)  # first: it names an unknown mass class
+    design = mjx_biped.planar_design(mass_class)  # first: it names an unknown mass class
     check_problem(speed, power_limit, step_length, mass_class)
     return GaitModel(design=design, speed=jnp.asarray(float(speed)),
                      step_length=jnp.asarray(float(step_length)),

@@ -15,12 +15,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import checks
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import segmented, verdict
 from biped_jax.optim import nlp
 from biped_jax.optim import exact_derivatives
-from biped_jax.optim import interior_point as ip
+from biped_jax.optim import interior_point
 from biped_jax.robots.specs import PLANAR_SPECS
 
 
@@ -28,7 +28,7 @@ from biped_jax.robots.specs import PLANAR_SPECS
 #: start near an optimum may begin from a smaller barrier parameter, ``mu_initial``): a KKT error of
 #: 1e-8 in scaled units keeps every constraint group far below 1e-4 in its own unit (the scales in
 #: :mod:`biped_jax.gait.problem` are at most 10 own units per scaled unit).
-GAIT_SOLVER_OPTIONS = ip.InteriorPointOptions()
+GAIT_SOLVER_OPTIONS = interior_point.InteriorPointOptions()
 
 
 #: The smallest power limit by the interior point (:meth:`GaitSolver.minimise_power_limit`): stages of
@@ -52,7 +52,7 @@ REPORT_BATCH = 8
 
 def report_batch(batch: int) -> int:
     """The number of problems (``batch`` and padding) one report program rolls out at once."""
-    return max(REPORT_BATCH, ip.padded_batch(batch))
+    return max(REPORT_BATCH, interior_point.padded_batch(batch))
 
 
 def strongly_typed(leaf) -> jax.Array:
@@ -124,7 +124,7 @@ def _check_weights(energy_weights) -> tuple[float, ...]:
 
 def _check_options(options) -> None:
     """TypeError naming the type unless ``options`` are the interior point's."""
-    if not isinstance(options, ip.InteriorPointOptions):
+    if not isinstance(options, interior_point.InteriorPointOptions):
         raise TypeError("options must be biped_jax.optim.interior_point.InteriorPointOptions, got "
                         f"{type(options).__name__}")
 
@@ -141,7 +141,7 @@ class GaitSolver:
     """
 
     def __init__(self, settings: gait_problem.GaitSettings = gait_problem.GaitSettings(),
-                 options: ip.InteriorPointOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
+                 options: interior_point.InteriorPointOptions = GAIT_SOLVER_OPTIONS, mass_class_template: str = "12kg",
                  require_refinement: bool = True, check_refinement: bool = True):
         if not isinstance(settings, gait_problem.GaitSettings):
             raise TypeError(f"settings must be a GaitSettings, got {type(settings).__name__}")
@@ -149,7 +149,7 @@ class GaitSolver:
         self.settings, self.options = settings, options
         self.require_refinement = require_refinement and check_refinement
         self.check_refinement = check_refinement
-        self.biped = hybrid_step.load_planar_biped(mass_class_template)  # designs replace its masses
+        self.biped = mjx_biped.load_planar_biped(mass_class_template)  # designs replace its masses
         self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
         biped, settings_ = self.biped, settings
 
@@ -182,7 +182,7 @@ class GaitSolver:
         """A solver sharing this one's compiled functions with other interior-point options."""
         return self.using(dataclasses.replace(self.options, **changes))
 
-    def using(self, options: ip.InteriorPointOptions) -> "GaitSolver":
+    def using(self, options: interior_point.InteriorPointOptions) -> "GaitSolver":
         """A solver sharing this one's compiled functions with ``options`` (options that change only the
         iteration count or the barrier's start share the compiled iterations too)."""
         _check_options(options)
@@ -197,10 +197,10 @@ class GaitSolver:
         on first use, both kept for later batches of the same shape."""
         problem, structure = self.prepared(kind, x0, batch)
         options = options or self.options
-        key = (kind, ip.loop_options(options))
+        key = (kind, interior_point.loop_options(options))
         if key not in self._interior:
-            self._interior[key] = ip.compile_problem(problem, options)
-        return ip.solve(problem, x0, batch, options, structure=structure,
+            self._interior[key] = interior_point.compile_problem(problem, options)
+        return interior_point.solve(problem, x0, batch, options, structure=structure,
                         compiled=self._interior[key], multipliers=multipliers, progress=progress)
 
     def prepared(self, kind: str, x0, batch) -> tuple[nlp.ConstrainedProblem, exact_derivatives.Structure]:
@@ -228,8 +228,8 @@ class GaitSolver:
         batch = x.shape[0]
         size = report_batch(batch)
         # strongly typed leaves padded with copies of the first row: one program whatever the batch
-        x, models = jax.tree.map(lambda a: ip.pad_rows(strongly_typed(a), size), (x, models))
-        sharding = ip.batch_sharding(size)
+        x, models = jax.tree.map(lambda a: interior_point.pad_rows(strongly_typed(a), size), (x, models))
+        sharding = interior_point.batch_sharding(size)
         if sharding is not None:
             x, models = jax.device_put((x, models), sharding)
         checked = self._checks[self.refined_settings if refined else self.settings](x, models)

@@ -12,7 +12,7 @@ import dataclasses
 
 import mujoco
 
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 from biped_jax.robots.mjcf import HUMANOID_ACTUATED_JOINTS
 
 #: Physics step of the replay, s (contacts want a step well below the optimiser's 6 ms).
@@ -35,7 +35,7 @@ def planarised_humanoid(mass_class: str = "12kg") -> mujoco.MjModel:
     slide z, hinge y at the hip centre): the planarising constraint. Time step :data:`TIMESTEP`."""
     if mass_class not in ("12kg", "18kg"):
         raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: '12kg', '18kg'")
-    spec = mujoco.MjSpec.from_file(str(robots.model_path(f"humanoid16_{mass_class}")))
+    spec = mujoco.MjSpec.from_file(str(registry.model_path(f"humanoid16_{mass_class}")))
     torso = spec.body("torso")
     spec.delete(spec.joint("root"))
     torso.pos = [0.0, 0.0, 0.0]

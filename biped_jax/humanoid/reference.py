@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
 
 #: Samples of the reference over the step's phase: fixed, so every gait shares one program.
@@ -101,9 +101,9 @@ def clearance_offset(model: gait_problem.GaitModel, q: np.ndarray, grid: np.ndar
     moving it forward: a damped least-squares step (:data:`CLEARANCE_DAMPING`) on the swing foot's (x, z)
     Jacobian with respect to (hip2, knee2), which is singular with a straight swing leg. The geometry is
     that of ``mass_class``'s planar biped; the masses are the gait's design."""
-    biped = hybrid_step.with_design(hybrid_step.load_planar_biped(mass_class), model.design)
+    biped = mjx_biped.with_design(mjx_biped.load_planar_biped(mass_class), model.design)
     states = jnp.asarray(np.column_stack([np.interp(phase, grid, q[:, k]) for k in range(q.shape[1])]))
-    foot = lambda q_: hybrid_step.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
+    foot = lambda q_: mjx_biped.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
     jacobians = np.asarray(jax.vmap(jax.jacfwd(foot))(states))[:, :, 3:5]
     height = np.asarray(jax.vmap(foot)(states))[:, 1]
     profile = SWING_CLEARANCE * np.minimum(1.0, np.minimum(phase, 1.0 - phase) / CLEARANCE_RAMP)

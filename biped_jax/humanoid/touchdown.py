@@ -12,7 +12,7 @@ from biped_jax.dynamics import impact
 from biped_jax.humanoid.controller import Gains, with_gains
 from biped_jax.humanoid.model import SIDES, Layout, sagittal_columns
 from biped_jax.humanoid.walk import Replay
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 
 #: Tracking errors are summarised outside this time after each touchdown, s (the contact model's
 #: impact lasts some milliseconds; the rigid model's is instantaneous).
@@ -50,7 +50,7 @@ STOPPED_FRACTION = 0.1
 def c_model_with_gains(mj_model: mujoco.MjModel, layout: Layout, gains: Gains) -> mujoco.MjModel:
     """A copy of the MuJoCo C model with the PD loops' joint damping and springs of :func:`with_gains`."""
     model = copy.deepcopy(mj_model)
-    tuned = with_gains(robots.put_mjx_model(mj_model), layout, gains)
+    tuned = with_gains(registry.put_mjx_model(mj_model), layout, gains)
     model.dof_damping[:] = np.asarray(tuned.dof_damping)
     model.jnt_stiffness[:] = np.asarray(tuned.jnt_stiffness)
     return model

@@ -11,8 +11,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step
+from biped_jax.dynamics import mjx_biped
 from biped_jax.robots import planar_biped
 from biped_jax.humanoid.controller import (
     DEFAULT_GAINS,
@@ -25,9 +24,9 @@ from biped_jax.humanoid.controller import (
 )
 from biped_jax.humanoid.model import Layout, planarised_humanoid, sagittal_columns
 from biped_jax.humanoid.reference import GaitReference
-from biped_jax.robots import registry as robots
+from biped_jax.robots import registry
 
-mjx = robots.import_mjx()
+mjx = registry.import_mjx()
 
 #: Physics steps per compiled call: the replay runs in chunks, one program for any duration.
 CHUNK = 100
@@ -112,8 +111,8 @@ def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitRefer
     qd0 = np.zeros(5)
     qd0[0] = reference.stance_angle_slope[0] / step_time
     qd0[planar_biped.ACTUATED_INDEX] = np.asarray(reference.joint_slope[0]) / step_time
-    pinned = hybrid_step.load_planar_biped(mass_class).pinned
-    qf, qfd = (np.asarray(a) for a in impact.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
+    pinned = mjx_biped.load_planar_biped(mass_class).pinned
+    qf, qfd = (np.asarray(a) for a in mjx_biped.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
     qpos, qvel = np.zeros(mj_model.nq), np.zeros(mj_model.nv)
     columns = sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd
@@ -132,7 +131,7 @@ def replay(reference: GaitReference, mass_class: str = "12kg", steps: int = 10, 
     if steps < 1:
         raise ValueError(f"steps must be at least 1, got {steps}")
     mj_model, layout, advance = _chunk_program(mass_class)
-    model = robots.put_mjx_model(mj_model)
+    model = registry.put_mjx_model(mj_model)
     qpos, qvel = initial_state(mj_model, layout, reference, mass_class)
     data = mjx.forward(model, mjx.make_data(model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
     support = Support(stance=jnp.asarray(0), stance_angle=reference.stance_angle[0], offset=jnp.zeros(4))

@@ -152,7 +152,7 @@ def nominal_design(mj_model: mujoco.MjModel, layout: DesignLayout) -> Design:
 
 def _check_types(design, layout) -> None:
     if not isinstance(design, Design):
-        raise TypeError(f"design must be a Design (e.g. biped_jax.dynamics.hybrid_step.planar_design()), got "
+        raise TypeError(f"design must be a Design (e.g. biped_jax.dynamics.mjx_biped.planar_design()), got "
                         f"{type(design).__name__}")
     if not isinstance(layout, DesignLayout):
         raise TypeError(f"layout must be a DesignLayout (design_layout(mj_model)), got {type(layout).__name__}")

@@ -20,11 +20,12 @@ from typing import Callable
 import jax
 import numpy as np
 
-from biped_jax.codesign import problem as codesign
+from biped_jax import codesign
 from biped_jax.drives import model as drive_model
+from biped_jax.drives import selection
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import GaitSolver
-from biped_jax.optim import interior_point as ip
+from biped_jax.optim import interior_point
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
 
@@ -37,7 +38,7 @@ POWER_LIMIT = 20.0  # W, the RE 25's rating and the paper's M_W for the 12 kg ro
 WINDINGS = ("RE25-42V", "RE25-118752", "RE25-30V", "RE25-48V")
 #: The batched interior point's settings for the co-design batches (every design of a batch in one
 #: compiled program).
-IP_OPTIONS = ip.InteriorPointOptions()
+IP_OPTIONS = interior_point.InteriorPointOptions()
 #: Its settings for batches warm-started from a solved gait (every batch but the reference's): from a
 #: smaller barrier parameter, as the paper study's warm stages (the same compiled iterations).
 IP_WARM_OPTIONS = codesign.SOLVER_OPTIONS
@@ -207,36 +208,14 @@ def design_starts(paper: codesign.DriveDesign, count: int, low, high, seed: int 
 def snapped_design(continuous: codesign.DriveDesign, mass_class: str,
                    catalogue: drive_model.Catalogue) -> tuple[tuple[str, ...], tuple[str, ...], codesign.DriveDesign]:
     """The catalogue design nearest to a continuous one: per joint the nearest gearhead
-    (:func:`~biped_jax.codesign.problem.nearest_gearhead`) and the winding at or below its torque
-    constant (:func:`~biped_jax.codesign.problem.nearest_winding`), its structure split and knee drives'
+    (:func:`~biped_jax.codesign.nearest_gearhead`) and the winding at or below its torque
+    constant (:func:`~biped_jax.codesign.nearest_winding`), its structure split and knee drives'
     place as the continuous design's. Returns (motors, gearheads, design)."""
     heads = tuple(codesign.nearest_gearhead(float(n), catalogue) for n in np.asarray(continuous.ratio))
     motors = tuple(codesign.nearest_winding(float(k), catalogue) for k in np.asarray(continuous.torque_constant))
     design = codesign.with_mass_split(codesign.catalogue_design(motors, heads, mass_class=mass_class,
                                                                 catalogue=catalogue), codesign.mass_split(continuous))
     return motors, heads, codesign.with_knee_drive_offset(design, codesign.knee_drive_offset(continuous))
-
-
-def drive_verdicts(motors, heads, solution, supply_voltage: float, catalogue: drive_model.Catalogue) -> list[dict]:
-    """Per joint the catalogue check of its motor and gearhead on the gait
-    (:func:`biped_jax.drives.selection.check_drive`: speed-torque line, thermal, gear and speed limits)
-    and the thermal margin, 1 - RMS motor torque / nominal torque."""
-    from biped_jax.drives import selection
-    trajectory = solution.trajectory
-    t = np.asarray(trajectory.t)
-    speed, torque = np.asarray(trajectory.joint_speed), np.asarray(trajectory.u)
-    verdicts = []
-    for j, (motor, head) in enumerate(zip(motors, heads)):
-        workspace = selection.JointWorkspace(t, speed[:, [j]], torque[:, [j]], solution.step_time_s)
-        motor_data = catalogue.motor(motor)
-        check = selection.check_drive(workspace, motor_data, catalogue.gearhead(head), supply_voltage)
-        verdicts.append({"joint": codesign.JOINTS[j], "motor": motor, "gearhead": head,
-                         "feasible": check["feasible"], "feasible_without_thermal": check["feasible_without_thermal"],
-                         "reason": check["reason"],
-                         "thermal_margin": 1.0 - check["rms_motor_torque_mNm"] * drive_model.MNM
-                         / motor_data.nominal_torque,
-                         "min_voltage_margin_V": check["min_voltage_margin_V"]})
-    return verdicts
 
 
 def _per_problem(problems, count: int, values) -> np.ndarray:
@@ -291,7 +270,7 @@ def lowest_energy(records: list[dict], indices) -> int | None:
 
 def energy_reduction(paper: dict, best: dict | None) -> dict | None:
     """The best catalogue design's Joule energy per step (J) against the paper design's (both
-    :func:`~biped_jax.codesign.problem.design_record`s of one problem) and the reduction, 1 - best /
+    :func:`~biped_jax.codesign.design_record`s of one problem) and the reduction, 1 - best /
     paper; None without a best design, the reason where the paper's design has no converged gait."""
     if best is None:
         return None
@@ -306,8 +285,8 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
                     problems=DESIGN_PROBLEMS, baseline: bool = True) -> dict:
     """Study (d): per problem (:data:`DESIGN_PROBLEMS`) the gear ratio and the winding per joint, the
     structure's mass split and the knee drives' place co-optimised with the gait
-    (:func:`~biped_jax.codesign.problem.co_optimise`, the variables within
-    :func:`~biped_jax.codesign.problem.design_bounds`: ratios 14-190:1, the catalogue's windings, the
+    (:func:`~biped_jax.codesign.co_optimise`, the variables within
+    :func:`~biped_jax.codesign.design_bounds`: ratios 14-190:1, the catalogue's windings, the
     split within ``MASS_SPLIT_BOUNDS``, the drives anywhere from the knee to the hip,
     :data:`DRIVE_OFFSET_BOUNDS`) from ``starts`` designs per problem
     (:func:`design_starts`: the paper's design and a Sobol sequence), all problems' designs in one
@@ -346,7 +325,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     records = []
     for b, ((motors, heads, design), solution) in enumerate(zip(snapped, verified)):
         split = dict(zip(codesign.MASS_SPLIT_NAMES, np.asarray(codesign.mass_split(design)).tolist()))
-        verdicts = (drive_verdicts(motors, heads, solution, catalogue.supply_voltage, catalogue)
+        verdicts = (selection.joint_verdicts(motors, heads, solution, catalogue.supply_voltage, catalogue)
                     if _converged(solution) else [])
         records.append({"problem": problems[b // starts].name, "motors": list(motors), "gearheads": list(heads),
                         "mass_split": split, **codesign.design_record(design, solution), "drive_verdicts": verdicts,

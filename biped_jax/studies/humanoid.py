@@ -126,14 +126,14 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
     humanoid_tracking.png, humanoid_torque_speed.png and humanoid_replay.npz."""
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection as drive_selection
-    from biped_jax.dynamics import hybrid_step
+    from biped_jax.dynamics import mjx_biped
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     mass_class, model = paper_model(name)
     x, settings, status = solved_gait(name, settings, gaits, say)
     if status != "converged":
         say(f"warning: the {name} gait did not converge ({status}); replaying it anyway")
-    biped = hybrid_step.load_planar_biped(mass_class)
+    biped = mjx_biped.load_planar_biped(mass_class)
     trajectory = jax.jit(lambda x_, m: gait_problem.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
     reference = humanoid.gait_reference(x, model, settings, trajectory, mass_class)
     say(f"compiling the humanoid's contact simulation and walking {steps} steps")

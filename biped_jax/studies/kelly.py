@@ -25,7 +25,7 @@ import numpy as np
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import report as gait_report
 from biped_jax.gait.solver import GaitSolution, GaitSolver
-from biped_jax.optim import interior_point as ip
+from biped_jax.optim import interior_point
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
 from biped_jax.robots.specs import KELLY_BIPED
@@ -41,7 +41,7 @@ NO_POWER_LIMIT = gait_problem.NO_POWER_LIMIT
 KELLY_SETTINGS = gait_problem.GaitSettings(spans=16, degree=3, substeps=4, torque_bound=TORQUE_BOUND,
                                    friction=NO_FRICTION_LIMIT, knee_max=3.0, segments=16)
 #: The batched interior point solves every start in one batch.
-KELLY_OPTIONS = ip.InteriorPointOptions()
+KELLY_OPTIONS = interior_point.InteriorPointOptions()
 #: Swing-knee lifts of the heuristic starts solved together (one batch, the best converged one wins).
 START_LIFTS = (0.3, 0.5, 0.8, 1.1)
 #: A constraint whose residual is within this of its bound (own units) counts as active.

@@ -17,7 +17,7 @@ from biped_jax.gait import report as gait_report
 from biped_jax.gait import multistart
 from biped_jax.gait import verdict
 from biped_jax.gait.solver import LIMIT_ENERGY_WEIGHTS, GaitSolution, GaitSolver
-from biped_jax.optim import interior_point as ip
+from biped_jax.optim import interior_point
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
 from biped_jax.studies import drive_train
@@ -139,9 +139,9 @@ QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start 
 #: the study's space, from the coarse space's gait at 1.02 times its limit, from mu = 1e-5 (the barrier's
 #: centring moves t by about mu times the 1,544 power rows: from 1e-3 the limit first rose to twice the
 #: start's, measured 2026-12-04). All share the compiled iterations.
-IP_OPTIONS = ip.InteriorPointOptions(max_iterations=80)
-IP_WARM_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-3, max_iterations=150)
-IP_POWER_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-5, max_iterations=150)
+IP_OPTIONS = interior_point.InteriorPointOptions(max_iterations=80)
+IP_WARM_OPTIONS = interior_point.InteriorPointOptions(mu_initial=1e-3, max_iterations=150)
+IP_POWER_OPTIONS = interior_point.InteriorPointOptions(mu_initial=1e-5, max_iterations=150)
 #: The continuation's last stages in the study's space (the coarse space runs all of
 #: :data:`~biped_jax.gait.solver.LIMIT_ENERGY_WEIGHTS`). Measured 2026-12-04 (2-core CPU, M1-M4 from
 #: the study's optima): every model converged in both spaces, 227-286 iterations in all; the plain
@@ -232,7 +232,7 @@ def run_study(out: Path, settings: gait_problem.GaitSettings = STUDY_SETTINGS,
     return _write_results(out, solutions, at_20, minimal, settings, solver, say)
 
 
-def _stage_report(say: Callable[..., None], options: ip.InteriorPointOptions,
+def _stage_report(say: Callable[..., None], options: interior_point.InteriorPointOptions,
                   label: str) -> Callable[[int, dict], None]:
     """A stage's progress line after every block of interior-point iterations, counting the batch's
     problems finished."""

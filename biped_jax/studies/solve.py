@@ -1,7 +1,8 @@
 """One gait problem of the user's own (``biped-jax solve``): a mass class, a speed, a step length and a
-power limit, solved as the study solves each of its models (every start family in the 4x coarser space,
-the cheapest carried into the fine one; :func:`biped_jax.gait.multistart.solve_multistart`), optionally
-with its smallest power limit; the study's files for that one problem."""
+power limit, and optionally catalogue drives (motor, gearhead, supply voltage), solved as the study
+solves each of its models (every start family in the 4x coarser space, the cheapest carried into the
+fine one; :func:`biped_jax.gait.multistart.solve_multistart`), optionally with its smallest power limit;
+the study's files for that one problem, and with drives their catalogue check per joint."""
 
 from __future__ import annotations
 
@@ -23,20 +24,62 @@ class Problem:
     Attributes:
       mass_class: "12kg" or "18kg" (the paper's bipeds). speed: m/s. step_length: m. power_limit: W,
         the bound on every actuated joint's |qdot u|.
+      motor, gearhead: catalogue names (``biped_jax/data/maxon_catalogue.json``, such as "RE25-42V",
+        "GP32A-66.22") of the drive at every joint; None for both: ideal drives (the paper's problem,
+        J the joint-torque energy); one of them given: the other is the paper's (RE 25 42 V, 66:1). With
+        a drive the robot carries its masses and reflected inertia, J is the motors' Joule energy and
+        the gait keeps within the supply voltage.
+      supply_voltage: V, with a drive only (None: the catalogue's).
     """
 
     mass_class: str = "12kg"
     speed: float = 0.555
     step_length: float = 0.2
     power_limit: float = 20.0
+    motor: str | None = None
+    gearhead: str | None = None
+    supply_voltage: float | None = None
+
+    @property
+    def has_drive(self) -> bool:
+        return self.motor is not None or self.gearhead is not None
 
     @property
     def name(self) -> str:
-        return f"{self.mass_class}, {self.speed:g} m/s, L = {self.step_length:g} m, M_W = {self.power_limit:g} W"
+        name = f"{self.mass_class}, {self.speed:g} m/s, L = {self.step_length:g} m, M_W = {self.power_limit:g} W"
+        if self.has_drive:
+            drive = self.drive_design()
+            name += f", {drive.motor} + {drive.gearhead}"
+        return name
+
+    def drive_design(self):
+        """The catalogue design of the drive (ValueError naming an unknown part or a bad voltage)."""
+        from biped_jax import codesign
+        if self.supply_voltage is not None and not self.has_drive:
+            raise ValueError(f"supply_voltage {self.supply_voltage!r} applies to a drive: give a motor or a gearhead")
+        if self.supply_voltage is not None and not (self.supply_voltage > 0 and self.supply_voltage < 1e4):
+            raise ValueError(f"supply_voltage must be a number of volts in (0, 1e4), got {self.supply_voltage!r}")
+        design = codesign.catalogue_design(self.motor or codesign.REFERENCE_MOTOR,
+                                           self.gearhead or codesign.REFERENCE_GEARHEAD, self.mass_class,
+                                           supply_voltage=self.supply_voltage)
+        return _Drive(design, self.motor or codesign.REFERENCE_MOTOR, self.gearhead or codesign.REFERENCE_GEARHEAD)
 
     def model(self) -> gait_problem.GaitModel:
         """The gait problem (ValueError naming a bad value, before anything compiles)."""
-        return gait_problem.gait_model(self.mass_class, self.speed, self.power_limit, self.step_length)
+        if not self.has_drive:
+            if self.supply_voltage is not None:
+                self.drive_design()  # names the voltage without a drive
+            return gait_problem.gait_model(self.mass_class, self.speed, self.power_limit, self.step_length)
+        from biped_jax import codesign
+        return codesign.design_gait_model(self.drive_design().design, self.speed, self.power_limit,
+                                          self.step_length)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Drive:
+    design: object  # codesign.DriveDesign
+    motor: str
+    gearhead: str
 
 
 def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings = paper.STUDY_SETTINGS,
@@ -69,6 +112,12 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
         tables += ["", "## Smallest power limit with a feasible gait", "",
                    f"{'-' if minimum['min_power_limit_W'] is None else format(minimum['min_power_limit_W'], '.3f')} W "
                    f"(kept on {solvers.fine.refined_settings.steps} steps; status {minimum['min_power_status']})"]
+    if problem.has_drive:
+        results["drives"] = _drive_check(problem, solution)
+        tables += ["", "## The drive's catalogue check per joint", "", "| joint | motor | gearhead | verdict | "
+                   "thermal margin |", "|---|---|---|---|---|"]
+        tables += [f"| {v['joint']} | {v['motor']} | {v['gearhead']} | {v['reason']} | {v['thermal_margin']:.2f} |"
+                   for v in results["drives"]["joints"]]
     outputs.write_json(out / "results.json", results)
     outputs.write_text(out / "tables.md", "\n".join(tables) + "\n")
     gait_report.plot_figure_2([solution], out / "fig2_trajectories.png")
@@ -76,3 +125,15 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
     from biped_jax.drives import selection as drive_selection
     drive_selection.save_workspaces(out / "trajectories.npz", [solution])
     return results
+
+
+def _drive_check(problem: Problem, solution) -> dict:
+    """The catalogue check of the problem's drive at every joint on the solved gait."""
+    from biped_jax.drives import model as drive_model
+    from biped_jax.drives import selection
+    catalogue = drive_model.load_catalogue()
+    drive = problem.drive_design()
+    voltage = catalogue.supply_voltage if problem.supply_voltage is None else problem.supply_voltage
+    joints = selection.joint_verdicts((drive.motor,) * 4, (drive.gearhead,) * 4, solution, voltage, catalogue)
+    return {"motor": drive.motor, "gearhead": drive.gearhead, "supply_voltage_V": voltage,
+            "passes_catalogue_check": all(v["feasible"] for v in joints), "joints": joints}

@@ -18,27 +18,27 @@ MASS_CLASSES = ("12kg", "18kg")
 def _energies(pinned, floating, q, qd, floating_q, floating_qd):
     """Mechanical energy (J) of the pinned model before the impact and of the floating one after it: one
     compiled program for every mass class (MJX run op by op compiles every operation alone)."""
-    from biped_jax.dynamics import hybrid_step
-    return (hybrid_step.mechanical_energy(pinned, q, qd),
-            hybrid_step.mechanical_energy(floating, floating_q, floating_qd))
+    from biped_jax.dynamics import mjx_biped
+    return (mjx_biped.mechanical_energy(pinned, q, qd),
+            mjx_biped.mechanical_energy(floating, floating_q, floating_qd))
 
 
 def step_report(mass_class: str, gait) -> tuple[dict, dict]:
     """Simulates one heuristic step of a mass class; returns (JSON-ready summary, arrays for plots)."""
     import jax
 
-    from biped_jax.dynamics import hybrid_step, planar_chain
+    from biped_jax.dynamics import mjx_biped, planar_chain
     from biped_jax.gait import heuristic_step
     from biped_jax.robots import planar_biped
 
-    biped = hybrid_step.load_planar_biped(mass_class)
+    biped = mjx_biped.load_planar_biped(mass_class)
     # the closed-form chain (equal to MJX to rounding; the chain's structure is the same for every mass
     # class, read here where the model is concrete); numpy from here: no op-by-op programs
     chain = planar_chain.PlanarChain.from_model(biped.pinned)
     trajectory, dt, index, impact, foot, foot_velocity = jax.tree.map(np.asarray, jax.jit(
         functools.partial(heuristic_step.simulate_step, gait=gait, chain=chain))(biped))
     index, dt = int(index), float(dt)
-    pinned = hybrid_step.with_timestep(biped.pinned, dt)
+    pinned = mjx_biped.with_timestep(biped.pinned, dt)
     end = index if index > 0 else len(trajectory.u)
     u = trajectory.u[:end]
     summary = {

@@ -1,5 +1,7 @@
-"""Physics checks of the hybrid step: energy, impact momentum, ground reaction, variant agreement,
-MJX against MuJoCo C, and autodiff against finite differences."""
+"""Physics checks of the walking step through its one interface (:mod:`biped_jax.dynamics.interface`),
+against every backend (MJX, the closed-form chain, MuJoCo C): energy, impact momentum, ground reaction,
+each backend's step against MuJoCo's ``mj_step``; the pinned and floating models' agreement, MJX against
+MuJoCo C, and autodiff against finite differences."""
 
 import functools
 
@@ -8,13 +10,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-from conftest import GRADIENT_START, GRADIENT_STEPS, ROLLOUT_STEPS
+from conftest import BACKENDS, GRADIENT_START, GRADIENT_STEPS, ROLLOUT_STEPS, backend
 
-from biped_jax.dynamics import impact
-from biped_jax.dynamics import hybrid_step
-from biped_jax.dynamics import planar_chain
-from biped_jax.robots import planar_biped
-from biped_jax.robots import registry as robots
+from biped_jax.dynamics import interface, mjx_biped, planar_chain
+from biped_jax.robots import planar_biped, registry
 
 #: Tests sharing a compiled MJX program (or a module fixture's) with tests elsewhere carry one xdist_group
 #: (the others are grouped by module, tests/conftest.py): pytest-xdist's loadgroup runs a group on one
@@ -23,7 +22,7 @@ from biped_jax.robots import registry as robots
 #: single-support program), "mjx_gradient" (the rollout's gradient), "mjx_forward" (mjx.forward
 #: per model, as tests/test_models.py).
 
-mjx = robots.import_mjx()
+mjx = registry.import_mjx()
 
 
 @pytest.mark.xdist_group("mjx_quickstart")
@@ -46,8 +45,9 @@ EXACT = 1e-10
 
 @pytest.mark.slow
 @pytest.mark.xdist_group("mjx_quickstart")
-def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollout):
-    """MuJoCo's semi-implicit Euler conserves energy to O(dt): halving dt halves the error.
+@pytest.mark.parametrize("name", BACKENDS)
+def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollout, name):
+    """Every backend's semi-implicit Euler conserves energy to O(dt): halving dt halves the error.
 
     One compiled rollout of ROLLOUT_STEPS = 50 steps serves both step sizes; the errors are compared over
     the same 25 ms (25 steps at 1 ms against 50 steps at 0.5 ms).
@@ -63,9 +63,9 @@ def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollo
 
     errors = {}
     for dt, steps in ((1e-3, ROLLOUT_STEPS // 2), (5e-4, ROLLOUT_STEPS)):
-        model = hybrid_step.with_timestep(biped12.pinned, dt)
-        trajectory = rollout(model, Q, QD, jnp.zeros((ROLLOUT_STEPS, 4)))
-        e = energy(model, trajectory.q[: steps + 1], trajectory.qd[: steps + 1])
+        dynamics = backend(biped12, name, dt)
+        trajectory = rollout(dynamics, Q, QD, jnp.zeros((ROLLOUT_STEPS, 4)))
+        e = energy(biped12.pinned, trajectory.q[: steps + 1], trajectory.qd[: steps + 1])
         errors[dt] = float(jnp.max(jnp.abs(e - e[0])))
     # Stated tolerance: below 0.05 % of the ~42 J total energy at dt = 0.5 ms over 25 ms.
     assert errors[5e-4] < 0.02
@@ -77,7 +77,7 @@ def test_energy_conserved_without_torque_and_error_is_first_order(biped12, rollo
 
 def test_ground_reaction_of_a_robot_at_rest_is_its_weight(biped12):
     q = jnp.array([0.0, 0.3, -0.3, 0.2, 0.4])
-    force = jax.jit(hybrid_step.ground_reaction)(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
+    force = jax.jit(mjx_biped.ground_reaction)(biped12.pinned, q, jnp.zeros(5), jnp.zeros(5))
     weight = float(jnp.sum(biped12.pinned.body_mass)) * 9.81
     np.testing.assert_allclose(force, [0.0, weight], atol=EXACT * weight)
 
@@ -95,7 +95,7 @@ def single_support(biped12):
     minute each."""
     pinned, floating = biped12.pinned, biped12.floating
     chain = planar_chain.PlanarChain.from_model(pinned)
-    mj_floating = robots.load_mj_model("biped5_floating_12kg")
+    mj_floating = registry.load_mj_model("biped5_floating_12kg")
     shank1 = mujoco.mj_name2id(mj_floating, mujoco.mjtObj.mjOBJ_BODY, "shank1")
     foot1 = mujoco.mj_name2id(mj_floating, mujoco.mjtObj.mjOBJ_SITE, "foot1")
 
@@ -110,7 +110,7 @@ def single_support(biped12):
         return jax.jvp(hip, (q,), (qdd,))[1] + jax.jvp(hip_velocity, (q,), (qd,))[1]
 
     def floating_accelerations(q, qd, u, qdd, force):  # the force applied to the free-floating model
-        qf, qfd = impact.pinned_to_floating(pinned, q, qd)
+        qf, qfd = mjx_biped.pinned_to_floating(pinned, q, qd)
         data = mjx.kinematics(floating, mjx.make_data(floating).replace(qpos=qf))
         force3 = jnp.array([force[0], 0.0, force[1]])
         torque3 = jnp.cross(data.site_xpos[foot1] - data.xipos[shank1], force3)
@@ -124,25 +124,26 @@ def single_support(biped12):
 
     @jax.jit
     def at(q, qd, u):
-        qdd = hybrid_step.stance_acceleration(pinned, q, qd, u)
-        force = hybrid_step.ground_reaction(pinned, q, qd, qdd)
+        qdd = mjx_biped.stance_acceleration(pinned, q, qd, u)
+        force = mjx_biped.ground_reaction(pinned, q, qd, qdd)
         return {"qdd": qdd, "force": force, "newton": newton(q, qd, qdd),
                 "floating": floating_accelerations(q, qd, u, qdd, force)}
     return at
 
 
 @pytest.mark.xdist_group("mjx_quickstart")
-def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout, single_support):
+@pytest.mark.parametrize("name", ["mjx", "mujoco"])
+def test_ground_reaction_is_newtons_law_for_the_centre_of_mass(biped12, rollout, single_support, name):
     """MJX's ground force (its recursive Newton-Euler pass) is F = sum_i m_i (a_i - g), the centres of
-    mass's accelerations from the closed-form chain; and the rollout's per-step force is the same
-    function of its states."""
+    mass's accelerations from the closed-form chain; and the rollout's per-step force (MJX's, MuJoCo
+    C's) is the same function of its states."""
     pinned = biped12.pinned
-    assert planar_biped.STANCE_BODY == mujoco.mj_name2id(robots.load_mj_model("biped5_pinned_12kg"),
+    assert planar_biped.STANCE_BODY == mujoco.mj_name2id(registry.load_mj_model("biped5_pinned_12kg"),
                                                           mujoco.mjtObj.mjOBJ_BODY, "shank1")
     here = single_support(Q, QD, U)
     assert float(jnp.linalg.norm(here["force"] - jnp.sum(pinned.body_mass) * 9.81 * jnp.array([0, 1]))) > 1.0
     np.testing.assert_allclose(here["force"], here["newton"], rtol=1e-10)
-    trajectory = rollout(pinned, Q, QD, jnp.tile(U, (ROLLOUT_STEPS, 1)))
+    trajectory = rollout(backend(biped12, name), Q, QD, jnp.tile(U, (ROLLOUT_STEPS, 1)))
     k = 37
     there = single_support(trajectory.q[k], trajectory.qd[k], U)
     np.testing.assert_allclose(trajectory.qdd[k], there["qdd"], rtol=1e-10)
@@ -175,15 +176,19 @@ def angular_momentum_about(model, q, qd, point):
     return jnp.sum(orbital + model.body_inertia[:, 1] * rate)
 
 
-@pytest.fixture(scope="module")
-def landing(biped12):
-    return jax.jit(impact.touchdown)(biped12, Q, QD)
+@pytest.fixture(scope="module", params=BACKENDS)
+def landing(biped12, request):
+    """The touchdown at (Q, QD) by each backend (one compiled program for each JAX backend)."""
+    dynamics = backend(biped12, request.param)
+    if request.param == "mujoco":
+        return interface.touchdown(dynamics, Q, QD)
+    return jax.jit(interface.touchdown)(dynamics, Q, QD)
 
 
 @pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landing):
     floating = biped12.floating
-    foot2 = hybrid_step.site_position(floating, landing.floating_q, "foot2")
+    foot2 = mjx_biped.site_position(floating, landing.floating_q, "foot2")
     before = angular_momentum_about(floating, landing.floating_q, landing.floating_qd_before, foot2)
     after = angular_momentum_about(floating, landing.floating_q, landing.floating_qd_after, foot2)
     assert abs(float(before)) > 0.1  # a real test: there is momentum to conserve
@@ -192,7 +197,7 @@ def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landi
 
 @pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_leaves_the_landing_foot_at_rest(biped12, landing):
-    jac = jax.jit(impact.foot_jacobian, static_argnums=2)(biped12.floating, landing.floating_q, "foot2")
+    jac = jax.jit(mjx_biped.foot_jacobian, static_argnums=2)(biped12.floating, landing.floating_q, "foot2")
     assert float(jnp.linalg.norm(jac @ landing.floating_qd_before)) > 0.1
     np.testing.assert_allclose(jac @ landing.floating_qd_after, 0.0, atol=EXACT)
 
@@ -204,8 +209,8 @@ def test_impact_momentum_balance(biped12, landing):
 
     @jax.jit  # one program: op by op, MJX compiles each operation alone (twice the time)
     def jumps(qf, before, after):
-        com_velocity = lambda qd: jax.jvp(functools.partial(hybrid_step.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
-        return (hybrid_step.mass_matrix(floating, qf) @ (after - before), impact.foot_jacobian(floating, qf, "foot2"),
+        com_velocity = lambda qd: jax.jvp(functools.partial(mjx_biped.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
+        return (mjx_biped.mass_matrix(floating, qf) @ (after - before), mjx_biped.foot_jacobian(floating, qf, "foot2"),
                 jnp.sum(floating.body_mass) * (com_velocity(after) - com_velocity(before)))
     jump, jac, momentum_jump = jumps(landing.floating_q, landing.floating_qd_before, landing.floating_qd_after)
     np.testing.assert_allclose(jump, jac.T @ landing.impulse, atol=EXACT)
@@ -218,10 +223,10 @@ def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
     # New leg 1 is old leg 2: the new stance knee rate is old knee2's post-impact rate, and so on.
     np.testing.assert_allclose(landing.qd[1:], qf_after[jnp.array([6, 5, 3, 4])], atol=EXACT)
     np.testing.assert_allclose(landing.qd[0], qf_after[2] + qf_after[5] + qf_after[6], atol=EXACT)
-    jac1 = impact.foot_jacobian(biped12.floating, landing.floating_q, "foot1")
+    jac1 = mjx_biped.foot_jacobian(biped12.floating, landing.floating_q, "foot1")
     np.testing.assert_allclose(landing.old_stance_foot_velocity, jac1 @ qf_after, atol=EXACT)
     # the new stance foot sits at the origin of the next step's pinned chain
-    _, swing_velocity = hybrid_step.swing_foot(biped12.pinned, landing.q, landing.qd)
+    _, swing_velocity = mjx_biped.swing_foot(biped12.pinned, landing.q, landing.qd)
     np.testing.assert_allclose(swing_velocity, landing.old_stance_foot_velocity, atol=1e-9)
 
 
@@ -232,12 +237,12 @@ def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
 def test_pinned_and_floating_variants_agree(biped12):
     """With the foot pinned, the floating model reduces to the pinned one: G^T M_f G = M_p and
     G^T grav_f = grav_p, with G = d q_floating / d q_pinned (column i: the floating velocity of a unit
-    velocity of pinned joint i, :func:`impact.pinned_to_floating` being the position map's JVP)."""
+    velocity of pinned joint i, :func:`mjx_biped.pinned_to_floating` being the position map's JVP)."""
     pinned, floating = biped12.pinned, biped12.floating
-    to_floating = jax.jit(impact.pinned_to_floating)
+    to_floating = jax.jit(mjx_biped.pinned_to_floating)
     qf = to_floating(pinned, Q, np.zeros(5))[0]
     g = jnp.stack([to_floating(pinned, Q, e)[1] for e in np.eye(5)], axis=1)
-    mass_matrix, gravity = jax.jit(hybrid_step.mass_matrix), jax.jit(hybrid_step.generalized_gravity)
+    mass_matrix, gravity = jax.jit(mjx_biped.mass_matrix), jax.jit(mjx_biped.generalized_gravity)
     np.testing.assert_allclose(g.T @ mass_matrix(floating, qf) @ g, mass_matrix(pinned, Q), atol=EXACT)
     np.testing.assert_allclose(g.T @ gravity(floating, qf), gravity(pinned, Q), atol=1e-9)
 
@@ -260,11 +265,15 @@ def _c_rollout(mj_model, q0, qd0, controls):
 
 
 @pytest.mark.xdist_group("mjx_quickstart")
-def test_mjx_matches_mujoco_c_pinned_rollout(biped12, rollout):
-    mj_model = robots.load_mj_model("biped5_pinned_12kg")
+@pytest.mark.parametrize("name", BACKENDS)
+def test_every_backend_steps_as_mujoco_c(biped12, rollout, name):
+    """Each backend's rollout through the interface against MuJoCo's own ``mj_step`` loop (the chain's
+    explicit Euler is MuJoCo's semi-implicit one without damping, as in the stored models)."""
+    mj_model = registry.load_mj_model("biped5_pinned_12kg")
+    assert not np.any(mj_model.dof_damping)
     rng = np.random.default_rng(0)
     controls = rng.normal(scale=2.0, size=(ROLLOUT_STEPS, 4))
-    trajectory = rollout(biped12.pinned, Q, QD, controls)
+    trajectory = rollout(backend(biped12, name), Q, QD, controls)
     expected = _c_rollout(mj_model, np.asarray(Q), np.asarray(QD), controls)
     np.testing.assert_allclose(np.concatenate([trajectory.q[1:], trajectory.qd[1:]], axis=1), expected,
                                rtol=MJX_VS_C, atol=MJX_VS_C)
@@ -274,8 +283,8 @@ def test_mjx_matches_mujoco_c_pinned_rollout(biped12, rollout):
 @pytest.mark.xdist_group("mjx_forward")  # the same jit(mjx.forward) programs
 def test_mjx_matches_mujoco_c_accelerations(name):
     """Random states and torques (humanoid high in the air, so no contact)."""
-    mj_model = robots.load_mj_model(name)
-    model = robots.put_mjx_model(mj_model)
+    mj_model = registry.load_mj_model(name)
+    model = registry.put_mjx_model(mj_model)
     rng = np.random.default_rng(1)
     forward = jax.jit(mjx.forward)
     for _ in range(3):
@@ -327,9 +336,12 @@ def test_rollout_gradient_matches_central_finite_differences(mjx_rollout_gradien
 
 
 @pytest.mark.slow
-def test_touchdown_gradient_matches_finite_differences(biped12):
+@pytest.mark.parametrize("name", ["mjx", "chain"])
+def test_touchdown_gradient_matches_finite_differences(biped12, name):
+    dynamics = backend(biped12, name)
+
     def impact_cost(qd):
-        result = impact.touchdown(biped12, Q, qd)
+        result = interface.touchdown(dynamics, Q, qd)
         return jnp.sum(result.qd ** 2) + jnp.sum(result.impulse) + result.old_stance_foot_velocity[1]
     # five random directions span the gradient's five components
     analytic, finite = _directional_derivatives(jax.jit(jax.value_and_grad(impact_cost)), QD, seed=4, directions=5)
@@ -339,10 +351,14 @@ def test_touchdown_gradient_matches_finite_differences(biped12):
 
 # ----------------------------------------------------------------------------- bad input
 
-def test_wrong_shapes_are_named(biped12):
+@pytest.mark.parametrize("name", BACKENDS)
+def test_wrong_shapes_are_named(biped12, name):
+    dynamics = backend(biped12, name)
     with pytest.raises(ValueError, match=r"controls must have shape \(T, 4\), got \(10, 3\)"):
-        hybrid_step.stance_rollout(biped12.pinned, Q, QD, jnp.zeros((10, 3)))
+        interface.stance_rollout(dynamics, Q, QD, jnp.zeros((10, 3)))
     with pytest.raises(ValueError, match=r"q0 must have shape \(5,\), got \(7,\)"):
-        hybrid_step.stance_rollout(biped12.pinned, jnp.zeros(7), QD, jnp.zeros((10, 4)))
+        interface.stance_rollout(dynamics, jnp.zeros(7), QD, jnp.zeros((10, 4)))
+    with pytest.raises(ValueError, match=r"qd must have shape \(5,\), got \(4,\)"):
+        interface.touchdown(dynamics, Q, QD[:4])
     with pytest.raises(ValueError, match="mass class '15kg'"):
-        hybrid_step.load_planar_biped("15kg")
+        mjx_biped.load_planar_biped("15kg")

@@ -1,9 +1,10 @@
-"""The hybrid walking step of the sagittal five-link biped in MJX: its models, kinematics and the
-single-support phase (touchdown, the step's other half, is :mod:`biped_jax.dynamics.impact`).
+"""The sagittal five-link biped in MJX: its two models (pinned single-support chain, floating base),
+designs as arrays, kinematics, and the MJX backend of the walking step (:class:`MjxDynamics`, behind
+:mod:`biped_jax.dynamics.interface`).
 
-Single support is a forward simulation of the pinned-stance chain with ``mjx.step`` (the stance foot is
+Single support is a forward simulation of the pinned-stance chain with MJX's pipeline (the stance foot is
 the world-fixed ``stance`` hinge, so it neither slips nor penetrates); touchdown is the perfectly
-inelastic impact map of the floating-base model, followed by relabelling legs 1 and 2. Both models are
+inelastic impact of the floating-base model (:mod:`biped_jax.dynamics.impact`). Both models are
 generated from one parameter set (``biped_jax.robots.mjcf``). Every function is pure, differentiable with
 ``jax.grad`` and batchable with ``jax.vmap``; no constraint solver is involved.
 
@@ -24,8 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax import checks
-from biped_jax.dynamics.planar_chain import StanceTrajectory
-from biped_jax.robots import registry as robots
+from biped_jax.dynamics import impact
+from biped_jax.robots import registry
 from biped_jax.robots.design import (
     Design,
     DesignLayout,
@@ -34,9 +35,9 @@ from biped_jax.robots.design import (
     design_layout,
     nominal_design,
 )
-from biped_jax.robots.planar_biped import N_ACTUATED, N_PINNED, PLANAR_ACTUATED, PLANAR_LINKS, STANCE_BODY
+from biped_jax.robots.planar_biped import GAIT_SITES, PLANAR_ACTUATED, PLANAR_LINKS, STANCE_BODY
 
-mjx = robots.import_mjx()
+mjx = registry.import_mjx()
 
 
 @jax.tree_util.register_dataclass
@@ -56,29 +57,29 @@ class PlanarBiped:
 # ----------------------------------------------------------------------------- models and designs
 
 def _check_mass_class(mass_class: str) -> None:
-    if mass_class not in robots.PLANAR_MASS_CLASSES:
-        raise ValueError(f"unknown mass class {mass_class!r}; known: {robots.PLANAR_MASS_CLASSES}")
+    if mass_class not in registry.PLANAR_MASS_CLASSES:
+        raise ValueError(f"unknown mass class {mass_class!r}; known: {registry.PLANAR_MASS_CLASSES}")
 
 
 def load_planar_biped(mass_class: str = "12kg") -> PlanarBiped:
     """Loads the pinned and floating MJX models of the 12 kg or 18 kg biped (paper Table 2)."""
     _check_mass_class(mass_class)
-    return PlanarBiped(pinned=robots.load_mjx_model(f"biped5_pinned_{mass_class}"),
-                       floating=robots.load_mjx_model(f"biped5_floating_{mass_class}"))
+    return PlanarBiped(pinned=registry.load_mjx_model(f"biped5_pinned_{mass_class}"),
+                       floating=registry.load_mjx_model(f"biped5_floating_{mass_class}"))
 
 
 @functools.lru_cache(maxsize=None)
 def planar_layouts() -> tuple[DesignLayout, DesignLayout]:
     """Design layouts (links torso, thigh1, shank1, thigh2, shank2; joints hip1, knee1, hip2, knee2) in
     the pinned and the floating model. Identical for both mass classes."""
-    return tuple(design_layout(robots.load_mj_model(f"biped5_{variant}_12kg"), PLANAR_LINKS,
+    return tuple(design_layout(registry.load_mj_model(f"biped5_{variant}_12kg"), PLANAR_LINKS,
                                PLANAR_ACTUATED) for variant in ("pinned", "floating"))
 
 
 def planar_design(mass_class: str = "12kg") -> Design:
     """The design stored in the MJCF file of a mass class."""
     _check_mass_class(mass_class)
-    return nominal_design(robots.load_mj_model(f"biped5_pinned_{mass_class}"), planar_layouts()[0])
+    return nominal_design(registry.load_mj_model(f"biped5_pinned_{mass_class}"), planar_layouts()[0])
 
 
 def with_design(biped: PlanarBiped, design: Design) -> PlanarBiped:
@@ -106,9 +107,10 @@ def with_timestep(model, timestep):
 
 # ----------------------------------------------------------------------------- kinematics
 
-def check_shape(name: str, value, shape: tuple) -> jax.Array:
-    """``value`` as an array, or a ValueError naming it and both shapes."""
-    value = jnp.asarray(value)
+def check_shape(name: str, value, shape: tuple, xp=jnp) -> jax.Array:
+    """``value`` as an array of ``xp`` (``jax.numpy`` or ``numpy``), or a ValueError naming it and both
+    shapes."""
+    value = xp.asarray(value)
     if value.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {value.shape}")
     return value
@@ -122,7 +124,7 @@ def _positions(model, q):
 
 def site_position(model, q: jax.Array, site: str) -> jax.Array:
     """World position of a named site, shape (3,), m, at configuration ``q``, shape (nq,)."""
-    site_id = mjx.name2id(model, robots.mujoco.mjtObj.mjOBJ_SITE, site)
+    site_id = mjx.name2id(model, registry.mujoco.mjtObj.mjOBJ_SITE, site)
     if site_id < 0:
         raise ValueError(f"model has no site {site!r}")
     return _positions(model, q).site_xpos[site_id]
@@ -162,40 +164,11 @@ def generalized_gravity(model, q: jax.Array) -> jax.Array:
 
 # ----------------------------------------------------------------------------- single support
 
-def stance_rollout(pinned, q0: jax.Array, qd0: jax.Array, controls: jax.Array) -> StanceTrajectory:
-    """Simulates single support with ``mjx.step`` under zero-order-hold torques.
-
-    Args:
-      pinned: ``mjx.Model`` of the pinned chain; its ``opt.timestep`` is the step (s).
-      q0: initial pinned coordinates, shape (5,), rad.
-      qd0: initial rates, shape (5,), rad/s.
-      controls: torques (H1, K1, H2, K2) for each step, shape (T, 4), N m.
-
-    Returns:
-      The trajectory; step k applies ``controls[k]`` from state k.
-    """
-    q0 = check_shape("q0", q0, (N_PINNED,))
-    qd0 = check_shape("qd0", qd0, (N_PINNED,))
-    controls = jnp.asarray(controls)
-    if controls.ndim != 2 or controls.shape[1] != N_ACTUATED:
-        raise ValueError(f"controls must have shape (T, {N_ACTUATED}), got {controls.shape}")
-
-    @jax.checkpoint  # store (q, qd) per step for the backward pass, not the whole mjx.Data
-    def step(state, u):
-        state, (qdd, force) = stance_step(pinned, state, u)
-        return state, (*state, qdd, force)
-
-    _, (q, qd, qdd, force) = jax.lax.scan(step, (q0, qd0), controls)
-    return StanceTrajectory(q=jnp.concatenate([q0[None], q]), qd=jnp.concatenate([qd0[None], qd]),
-                            qdd=qdd, u=controls, ground_force=force)
-
-
 def stance_step(pinned, state: tuple[jax.Array, jax.Array], u: jax.Array):
     """One step of single support in MJX under torques u (H1, K1, H2, K2) (N m), with the model's own
     integrator and ``opt.timestep``: ``state`` = (q, qd), shapes (5,), rad and rad/s. Returns (the next
     state, (qdd (5,) rad/s^2, the ground force (F_x, F_z) N)), both from the step's one forward pass, as
-    ``mjx.step`` would; traceable, for ``lax.scan`` (:func:`stance_rollout`, the heuristic step's
-    controller in the loop; :class:`biped_jax.dynamics.stance.MjxDynamics`)."""
+    ``mjx.step`` would; traceable (:meth:`MjxDynamics.step`)."""
     q, qd = state
     data = mjx.forward(pinned, mjx.make_data(pinned).replace(qpos=q, qvel=qd, ctrl=u))
     force = stance_force(pinned, data)
@@ -237,3 +210,70 @@ def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.
     data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
     data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
     return stance_force(pinned, data.replace(qacc=qdd))
+
+
+# ----------------------------------------------------------------------------- touchdown
+
+def pinned_to_floating(pinned, q: jax.Array, qd: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Floating-base state (shape (7,) each) of a single-support state, stance foot at the origin."""
+    return jax.jvp(lambda q_: impact.floating_coordinates(site_position(pinned, q_, "hip")[jnp.array([0, 2])], q_),
+                   (q,), (qd,))
+
+
+def foot_jacobian(floating, qf: jax.Array, foot: str) -> jax.Array:
+    """d(foot x, z)/dq of the floating model, shape (2, 7)."""
+    return jax.jacfwd(lambda q_: site_position(floating, q_, foot)[jnp.array([0, 2])])(qf)
+
+
+def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Perfectly inelastic impact of foot 2 with the ground on the floating model: (qd+ (7,), the
+    ground impulse on foot 2 (x, z) (2,), N s), from M (qd+ - qd-) = J2^T Lambda, J2 qd+ = 0."""
+    return impact.inelastic_impact(mass_matrix(floating, qf), foot_jacobian(floating, qf, "foot2"), qfd_before)
+
+
+# ----------------------------------------------------------------------------- the MJX backend
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class MjxDynamics:
+    """The MJX backend of :class:`biped_jax.dynamics.interface.StanceDynamics` (a pytree of one
+    design's models: batchable over designs): MJX's forward pipeline for single support, the
+    floating-base model's mass matrix and site Jacobians for the touchdown.
+
+    Attributes:
+      biped: the design's two models.
+      sites: the model's ids of :data:`~biped_jax.robots.planar_biped.GAIT_SITES`, shape (4,).
+    """
+
+    biped: PlanarBiped
+    sites: jax.Array
+
+    @classmethod
+    def of(cls, biped: PlanarBiped) -> "MjxDynamics":
+        sites = [mjx.name2id(biped.pinned, registry.mujoco.mjtObj.mjOBJ_SITE, name) for name in GAIT_SITES]
+        return cls(biped=biped, sites=jnp.array(sites))
+
+    @property
+    def pinned(self):
+        return self.biped.pinned
+
+    def terms(self, q, qd):
+        data = mjx.make_data(self.pinned).replace(qpos=q, qvel=qd)
+        data = mjx.fwd_velocity(self.pinned, mjx.fwd_position(self.pinned, data))
+        return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
+
+    def outputs(self, q, qd, qdd, data):
+        force = stance_force(self.pinned, data.replace(qacc=qdd))
+        return force, data.site_xpos[self.sites][:, jnp.array([0, 2])]
+
+    def swing_foot(self, q, qd):
+        return swing_foot(self.pinned, q, qd)
+
+    def step(self, state, u):
+        return stance_step(self.pinned, state, u)
+
+    def impact_system(self, q, qd) -> impact.ImpactSystem:
+        qf, qfd = pinned_to_floating(self.pinned, q, qd)
+        floating = self.biped.floating
+        return impact.ImpactSystem(mass=mass_matrix(floating, qf), landing=foot_jacobian(floating, qf, "foot2"),
+                                   leaving=foot_jacobian(floating, qf, "foot1"), velocity=qfd, floating_q=qf)

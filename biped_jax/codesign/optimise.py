@@ -1,7 +1,8 @@
 """Co-design of the sagittal biped: gear ratios, windings and link masses with the gait, motor in the loop.
 
 The hardware is a :class:`~biped_jax.codesign.drive_design.DriveDesign` (arrays, batchable; its names are
-re-exported here, so ``from biped_jax.codesign import problem as codesign`` is the whole co-design), mapped
+re-exported here and the package re-exports this module's, so ``from biped_jax import codesign`` is the
+whole co-design), mapped
 to the gait problem by :func:`~biped_jax.codesign.drive_design.design_gait_model`. So one compiled gait program
 (``GaitSolver``) solves any batch of designs (:func:`solve_designs`), and the paper's problem is the
 special case of ideal drives. Gradients of the optimal Joule energy with respect to the design come
@@ -52,12 +53,19 @@ from biped_jax.codesign.drive_design import (  # the hardware, re-exported: one 
 )
 from biped_jax.drives import model as drive_model
 from biped_jax.gait import problem as gait_problem
-from biped_jax.optim import interior_point as ip
+from biped_jax.optim import interior_point
 from biped_jax.optim import nlp
 
 __all__ = [
     "CoOptimisation",
+    "DESIGN_UNITS",
     "DESIGN_VARIABLES",
+    "JOINTS",
+    "PLACEMENT",
+    "RATIOS",
+    "SPLIT",
+    "SPLIT_STEP_SCALE",
+    "WINDINGS",
     "MASS_SPLIT_BOUNDS",
     "MASS_SPLIT_NAMES",
     "DriveDesign",
@@ -99,7 +107,7 @@ __all__ = [
 #: envelope gradient and difference of optima disagreed (measured on the tests' 4-span grid at
 #: 66:1 * exp(+-0.03); ``tests/test_codesign.py`` compares the two). The iteration cap bounds a design
 #: without a gait (a too-high speed in a bisection).
-SOLVER_OPTIONS = ip.InteriorPointOptions(mu_initial=1e-3, max_iterations=300)
+SOLVER_OPTIONS = interior_point.InteriorPointOptions(mu_initial=1e-3, max_iterations=300)
 
 
 # ----------------------------------------------------------------------------- batch evaluation
