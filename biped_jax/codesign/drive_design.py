@@ -45,7 +45,8 @@ class DriveDesign:
 
     Attributes:
       ratio: gear ratio N, (4,). gear_efficiency: eta, (4,). gear_inertia: referred to the motor
-        side, kg m^2, (4,). gear_mass: kg, (4,).
+        side, kg m^2, (4,). gear_mass: kg, (4,). gear_torque_limit: the gear's intermittent output
+        torque, N m, (4,). gear_speed_limit: its largest input speed, rad/s, (4,).
       torque_constant: k_t, N m/A, (4,). resistance: R, ohm, (4,). rotor_inertia: kg m^2, (4,).
         motor_mass: kg, (4,).
       structure_mass: the links without drives (torso, thigh1, shank1, thigh2, shank2), kg, (5,).
@@ -58,6 +59,8 @@ class DriveDesign:
     gear_efficiency: jax.Array
     gear_inertia: jax.Array
     gear_mass: jax.Array
+    gear_torque_limit: jax.Array
+    gear_speed_limit: jax.Array
     torque_constant: jax.Array
     resistance: jax.Array
     rotor_inertia: jax.Array
@@ -90,13 +93,14 @@ def robot_design(design: DriveDesign) -> Design:
 
 
 def joint_drives(design: DriveDesign) -> drive_model.JointDrives:
-    """The drives as the gait problem sees them (objective: Joule energy; constraint: voltage; the
-    gear's torque is bounded by the gait's own torque bound, so no gear limit here)."""
+    """The drives as the gait problem sees them (objective: Joule energy; constraints: the supply
+    voltage, and where the gait's settings ask for them (``GaitSettings.drive_limits``) the gear's
+    intermittent output torque and largest input speed)."""
     return drive_model.JointDrives(ratio=design.ratio, efficiency=design.gear_efficiency,
                                    torque_constant=design.torque_constant, resistance=design.resistance,
-                                   supply_voltage=design.supply_voltage,
-                                   gear_torque_limit=jnp.full_like(design.ratio, jnp.inf),
-                                   reflected_inertia=reflected_inertia(design))
+                                   supply_voltage=design.supply_voltage, gear_torque_limit=design.gear_torque_limit,
+                                   reflected_inertia=reflected_inertia(design),
+                                   input_speed_limit=design.gear_speed_limit)
 
 
 def design_gait_model(design: DriveDesign, speed, power_limit, step_length=0.2) -> gait_problem.GaitModel:
@@ -158,6 +162,8 @@ def catalogue_design(motor: str | tuple[str, ...] = REFERENCE_MOTOR,
     per_joint = lambda parts, field: jnp.array([getattr(p, field) for p in parts], dtype=float)  # noqa: E731
     return DriveDesign(ratio=per_joint(heads, "ratio"), gear_efficiency=per_joint(heads, "efficiency"),
                        gear_inertia=per_joint(heads, "inertia"), gear_mass=per_joint(heads, "mass"),
+                       gear_torque_limit=per_joint(heads, "intermittent_torque"),
+                       gear_speed_limit=per_joint(heads, "max_input_speed"),
                        torque_constant=per_joint(motors, "torque_constant"),
                        resistance=per_joint(motors, "resistance"), rotor_inertia=per_joint(motors, "rotor_inertia"),
                        motor_mass=per_joint(motors, "mass"), structure_mass=jnp.asarray(structure),
@@ -165,28 +171,33 @@ def catalogue_design(motor: str | tuple[str, ...] = REFERENCE_MOTOR,
 
 
 def _stage_table(catalogue: drive_model.Catalogue):
-    """Per gearhead stage: geometric-mean ratio, efficiency, inertia, mass (numpy, ascending ratio)."""
+    """Per gearhead stage: geometric-mean ratio, efficiency, inertia, mass, intermittent output torque,
+    largest input speed (numpy, ascending ratio)."""
     stages = {}
     for g in catalogue.gearheads.values():
         stages.setdefault(g.stages, []).append(g)
     rows = []
     for _, heads in sorted(stages.items()):
         ratios = np.array([h.ratio for h in heads])
-        rows.append((math.exp(np.mean(np.log(ratios))), heads[0].efficiency, heads[0].inertia, heads[0].mass))
+        first = heads[0]
+        rows.append((math.exp(np.mean(np.log(ratios))), first.efficiency, first.inertia, first.mass,
+                     first.intermittent_torque, first.max_input_speed))
     return np.array(rows)
 
 
 def with_ratio(design: DriveDesign, log_ratio: jax.Array,
                catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
-    """``design`` with gear ratios exp(log_ratio) ((4,), traceable) and the gear's efficiency, inertia
-    and mass interpolated linearly in log N between the GP 32 A stages (at each stage's geometric-mean
-    ratio): a smooth stand-in for the stage steps, so the ratio can be a continuous design variable.
+    """``design`` with gear ratios exp(log_ratio) ((4,), traceable) and the gear's efficiency, inertia,
+    mass and limits (intermittent torque, input speed) interpolated linearly in log N between the GP 32 A
+    stages (at each stage's geometric-mean ratio): a smooth stand-in for the stage steps, so the ratio can
+    be a continuous design variable (snapped to a catalogue gearhead, the design is checked again).
     Catalogue designs (:func:`catalogue_design`) carry the exact data of their gearhead."""
     table = _stage_table(catalogue or drive_model.load_catalogue())
     log_stage = jnp.log(table[:, 0])
     interpolate = lambda column: jnp.interp(log_ratio, log_stage, jnp.asarray(table[:, column]))  # noqa: E731
     return dataclasses.replace(design, ratio=jnp.exp(log_ratio), gear_efficiency=interpolate(1),
-                               gear_inertia=interpolate(2), gear_mass=interpolate(3))
+                               gear_inertia=interpolate(2), gear_mass=interpolate(3),
+                               gear_torque_limit=interpolate(4), gear_speed_limit=interpolate(5))
 
 
 #: The mass split's variables: the legs' share of the structure mass (both legs, drives excluded) and

@@ -282,6 +282,12 @@ GRADIENT_CHECK_MU = 1e-7
 #: Components of the gradient under this fraction of its largest are judged against that fraction of
 #: it (a relative error of a component that is zero, such as a flat winding, means nothing).
 GRADIENT_CHECK_FLOOR = 0.01
+#: A variable's one-sided differences further apart than this fraction of the larger of them (floored
+#: as the relative error) mark a kink of J* within its steps (an active set that changes there, such as
+#: a gear limit that starts to bind): there J* has no derivative for central differences to approximate,
+#: the envelope gradient is that of the design's own active set, and the variable is left out of
+#: ``max_relative_error_where_smooth``. A smooth J* within 1 % steps differs by J'' h, a few per cent.
+GRADIENT_CHECK_KINK = 0.25
 
 
 def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, power_limit, step_length=0.2,
@@ -295,10 +301,13 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
     serves. ``speed``, ``power_limit``, ``step_length``: numbers or one per design.
 
     Returns per design a JSON-ready dict: ``envelope`` and ``central_differences`` (J per unit of each
-    variable), ``re_solves_converged`` per variable, ``relative_error`` per variable (|envelope -
-    central| over |central|, floored at :data:`GRADIENT_CHECK_FLOOR` of the largest |central|: a flat
-    variable, such as a winding whose voltage limit is inactive, is judged against the gradient's
-    scale) and ``max_relative_error`` over the variables whose re-solves converged (None if none did).
+    variable), ``one_sided_differences`` ((backward, forward) per variable, from the design's own J*),
+    ``kink`` per variable (:data:`GRADIENT_CHECK_KINK`), ``re_solves_converged`` per variable,
+    ``relative_error`` per variable (|envelope - central| over |central|, floored at
+    :data:`GRADIENT_CHECK_FLOOR` of the largest |central|: a flat variable, such as a winding whose
+    voltage limit is inactive, is judged against the gradient's scale), ``max_relative_error`` over the
+    variables whose re-solves converged (None if none did) and ``max_relative_error_where_smooth`` over
+    those of them without a kink (None if none).
     """
     steps = np.asarray(steps, dtype=float)
     size = len(DESIGN_VARIABLES)
@@ -335,14 +344,41 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
         central = np.array([(mine[i].cost - mine[size + i].cost) / spans[i] for i in range(size)])
         ok = np.array([mine[i].status == nlp.CONVERGED and mine[size + i].status == nlp.CONVERGED
                        for i in range(size)])
-        error = np.abs(gradient[k] - central) / np.maximum(np.abs(central),
-                                                            GRADIENT_CHECK_FLOOR * np.max(np.abs(central)))
+        floor = GRADIENT_CHECK_FLOOR * np.max(np.abs(central))
+        error = np.abs(gradient[k] - central) / np.maximum(np.abs(central), floor)
+        one_sided = _one_sided(solutions[k].cost, [s.cost for s in mine], theta[k], points[k])
+        kink = kinks(one_sided, floor)
+        smooth = ok & ~kink
         results.append({"variables": list(DESIGN_VARIABLES), "envelope": gradient[k].tolist(),
-                        "central_differences": central.tolist(), "steps": steps.tolist(),
+                        "central_differences": central.tolist(), "one_sided_differences": one_sided.tolist(),
+                        "kink": kink.tolist(), "steps": steps.tolist(),
                         "floor_of_the_largest": GRADIENT_CHECK_FLOOR, "mu_initial": GRADIENT_CHECK_MU,
                         "re_solves_converged": ok.tolist(), "relative_error": error.tolist(),
-                        "max_relative_error": float(np.max(error[ok])) if ok.any() else None})
+                        "max_relative_error": float(np.max(error[ok])) if ok.any() else None,
+                        "max_relative_error_where_smooth": float(np.max(error[smooth])) if smooth.any() else None})
     return results
+
+
+def _one_sided(cost: float, costs: list[float], theta: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(backward, forward) differences per variable, (V, 2), from J* at ``theta`` (V,) and at its 2 V
+    ``points`` (+ steps, then - steps); a step clipped to nothing (the drives' place at an end of the
+    thigh) gives the other side's difference on both."""
+    size = len(theta)
+    forward_span = points[np.arange(size), np.arange(size)] - theta
+    backward_span = theta - points[size + np.arange(size), np.arange(size)]
+    costs = np.asarray(costs)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        forward = np.where(forward_span > 0, (costs[:size] - cost) / forward_span, np.nan)
+        backward = np.where(backward_span > 0, (cost - costs[size:]) / backward_span, np.nan)
+    forward, backward = np.where(np.isnan(forward), backward, forward), np.where(np.isnan(backward), forward, backward)
+    return np.stack([backward, forward], axis=1)
+
+
+def kinks(one_sided: np.ndarray, floor: float = 0.0) -> np.ndarray:
+    """Per variable whether its (backward, forward) differences (V, 2) are further apart than
+    :data:`GRADIENT_CHECK_KINK` of the larger of them (at least ``floor``): a kink of J* between the steps."""
+    return np.abs(one_sided[:, 1] - one_sided[:, 0]) > GRADIENT_CHECK_KINK * np.maximum(np.abs(one_sided).max(axis=1),
+                                                                                          floor)
 
 
 @dataclasses.dataclass

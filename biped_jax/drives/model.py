@@ -227,6 +227,7 @@ class JointDrives:
       resistance: R, ohm. supply_voltage: V_s, V, shape ().
       gear_torque_limit: the gear's intermittent output torque, N m (inf: none).
       reflected_inertia: N^2 (J_rotor + J_gear), the drive's inertia at the joint, kg m^2.
+      input_speed_limit: the gear's largest input (motor) speed, rad/s (inf: none).
     Per-joint fields have shape (n_joints,), or () for the same drive at every joint (DONALD's).
     """
 
@@ -237,6 +238,7 @@ class JointDrives:
     supply_voltage: jax.Array
     gear_torque_limit: jax.Array
     reflected_inertia: jax.Array
+    input_speed_limit: jax.Array
 
 
 def reflected_inertia(ratio, rotor_inertia, gear_inertia) -> jax.Array:
@@ -250,7 +252,7 @@ def ideal_drives(joints: int = 4) -> JointDrives:
     ones = jnp.ones(joints)
     return JointDrives(ratio=ones, efficiency=ones, torque_constant=ones, resistance=ones,
                        supply_voltage=jnp.asarray(NO_VOLTAGE_LIMIT), gear_torque_limit=jnp.full(joints, jnp.inf),
-                       reflected_inertia=jnp.zeros(joints))
+                       reflected_inertia=jnp.zeros(joints), input_speed_limit=jnp.full(joints, jnp.inf))
 
 
 def catalogue_drives(motor: str, gearhead: str, supply_voltage: float,
@@ -264,7 +266,8 @@ def catalogue_drives(motor: str, gearhead: str, supply_voltage: float,
                        torque_constant=jnp.asarray(m.torque_constant), resistance=jnp.asarray(m.resistance),
                        supply_voltage=jnp.asarray(float(supply_voltage)),
                        gear_torque_limit=jnp.asarray(g.intermittent_torque),
-                       reflected_inertia=jnp.asarray(reflected_inertia(g.ratio, m.rotor_inertia, g.inertia)))
+                       reflected_inertia=jnp.asarray(reflected_inertia(g.ratio, m.rotor_inertia, g.inertia)),
+                       input_speed_limit=jnp.asarray(g.max_input_speed))
 
 
 def torque_limits(drives: JointDrives, joint_speed: jax.Array) -> tuple[jax.Array, jax.Array]:

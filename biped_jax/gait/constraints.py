@@ -39,6 +39,7 @@ CONSTRAINT_GROUPS = {
     "impact_impulse": ("inequality", "N s"),
     "liftoff": ("inequality", "m/s"),
     "voltage": ("inequality", "V"),
+    "gear_input_speed": ("inequality", "rad/s"),
 }
 
 
@@ -47,25 +48,40 @@ CONSTRAINT_GROUPS = {
 #: shooting defects, the touchdown and the periodicity). ``swing_foot_height`` leaves out the first and the
 #: last sample (the feet are on the ground there).
 SAMPLE_GROUPS = ("swing_foot_height", "heights", "knee_range", "vertical_force", "friction_cone",
-                 "torque_bound", "power_limit", "voltage")
+                 "torque_bound", "power_limit", "voltage", "gear_input_speed")
+
+#: The joint speed, rad/s, standing for "no input speed limit" where a drive has none (ideal drives in
+#: a problem with ``GaitSettings.drive_limits``): far beyond any gait's, and finite, so that its rows
+#: keep finite slacks.
+NO_SPEED_LIMIT = 1e3
 
 
 def sample_groups(q, u, ground_force, swing_foot, heights, joint_speed, model: GaitModel,
                   settings: GaitSettings) -> dict:
     """The per-sample groups at N samples (arrays (N, ...) of :class:`GaitTrajectory`'s fields), each
-    of shape (blocks, N, components) in its own unit (``swing_foot_height`` at every sample)."""
+    of shape (blocks, N, components) in its own unit (``swing_foot_height`` at every sample). With
+    ``settings.drive_limits`` the torque bound is also the gear's intermittent torque and
+    ``gear_input_speed`` bounds the joint speeds by the gear's input speed over N; without, that group
+    has no components."""
     knees = q[:, jnp.array([1, 4])]
     fx, fz = ground_force[:, 0], ground_force[:, 1]
+    drives = model.drives
+    if settings.drive_limits:
+        torque_bound = jnp.minimum(settings.torque_bound, drives.gear_torque_limit)
+        speed_bound = jnp.minimum(drives.input_speed_limit / drives.ratio, NO_SPEED_LIMIT)
+        gear_speed = _two_sided_blocks(joint_speed, speed_bound)
+    else:
+        torque_bound, gear_speed = settings.torque_bound, jnp.zeros((2, joint_speed.shape[0], 0), joint_speed.dtype)
     return {
         "swing_foot_height": -swing_foot[None, :, 1:2],
         "heights": -heights[None],
         "knee_range": jnp.stack([-knees, knees - settings.knee_max]),
         "vertical_force": -fz[None, :, None],
         "friction_cone": jnp.stack([fx - settings.friction * fz, -fx - settings.friction * fz])[..., None],
-        "torque_bound": _two_sided_blocks(u, settings.torque_bound),
+        "torque_bound": _two_sided_blocks(u, torque_bound),
         "power_limit": _two_sided_blocks(joint_speed * u, model.power_limit),
-        "voltage": _two_sided_blocks(drive_model.required_voltage(u, joint_speed, model.drives),
-                                     model.drives.supply_voltage),
+        "voltage": _two_sided_blocks(drive_model.required_voltage(u, joint_speed, drives), drives.supply_voltage),
+        "gear_input_speed": gear_speed,
     }
 
 

@@ -198,9 +198,16 @@ _BOUNDARY_EQUALITIES = ("touchdown_position", "periodicity_angle", "periodicity_
 _BOUNDARY_INEQUALITIES = ("touchdown_descending", "impact_impulse", "liftoff")
 
 
-#: Each sample group's (blocks, components) (:func:`biped_jax.gait.constraints.sample_groups`).
+#: Each sample group's (blocks, components) (:func:`biped_jax.gait.constraints.sample_groups`) without
+#: ``GaitSettings.drive_limits``; with them the gear group has four components (:func:`sample_shapes`).
 SAMPLE_SHAPES = {"swing_foot_height": (1, 1), "heights": (1, 3), "knee_range": (2, 2), "vertical_force": (1, 1),
-                 "friction_cone": (2, 1), "torque_bound": (2, 4), "power_limit": (2, 4), "voltage": (2, 4)}
+                 "friction_cone": (2, 1), "torque_bound": (2, 4), "power_limit": (2, 4), "voltage": (2, 4),
+                 "gear_input_speed": (2, 0)}
+
+
+def sample_shapes(settings: GaitSettings) -> dict:
+    """Each sample group's (blocks, components) in ``settings``."""
+    return {**SAMPLE_SHAPES, "gear_input_speed": (2, 4 if settings.drive_limits else 0)}
 
 
 def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
@@ -209,7 +216,7 @@ def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: st
     :class:`~biped_jax.gait.settings.LimitParams`) whose rows, in the problem's order, are those of
     :class:`biped_jax.gait.solver.GaitSolver`'s problem (or its ``limit_problem``)."""
     split = _Split(biped, settings, kind)
-    order_r, order_h, order_g = split.orders(SAMPLE_SHAPES)
+    order_r, order_h, order_g = split.orders(sample_shapes(settings))
     return LocalProblem(segment=split.segment, boundary=split.boundary, segment_columns=split.segment_columns,
                         boundary_columns=split.boundary_columns, segment_data=split.data,
                         order_r=order_r, order_h=order_h, order_g=order_g,

@@ -50,13 +50,18 @@ class GaitSettings:
       knee_max: largest knee flexion, rad (the smallest is 0).
       dynamics: "chain" (the closed-form planar-chain dynamics of :mod:`biped_jax.dynamics.planar_chain`, equal
         to MJX's to rounding and several times faster to compile and differentiate) or "mjx" (MJX's
-        forward pipeline). The touchdown impact map is MJX's in both.
+        forward pipeline); :mod:`biped_jax.dynamics.interface`.
       segments: shooting segments of the stance angle's zero dynamics, dividing ``spans``; None (the
         default) shoots one per knot span. 1 is single shooting from the start state; more start each
         segment (a run of spans / segments knot spans) from its own stance state, a decision
         variable, with continuity as equality constraints (multiple shooting: the unstable stance
         pendulum cannot drift over a segment, and the interior point's derivatives split by segment,
         :mod:`biped_jax.gait.segmented`, several times cheaper than over the whole step).
+      drive_limits: hold the drives' gear limits at every sample: |u_i| within the gear's intermittent
+        output torque (besides ``torque_bound``) and the motor speed N |qdot_i| within the gear's largest
+        input speed (the ``gear_input_speed`` group). Off by default (the paper's problem: its ideal
+        drives have none); the co-design's catalogue drives have them. On, every program has 8 more rows
+        per sample; off, the group has none.
 
     Raises ValueError naming the field, its value and the allowed range.
     """
@@ -70,6 +75,7 @@ class GaitSettings:
     knee_max: float = 2.6
     dynamics: str = "chain"
     segments: int | None = None
+    drive_limits: bool = False
 
     def __post_init__(self):
         if self.segments is None and not isinstance(self.spans, bool) and isinstance(self.spans, int):
@@ -88,6 +94,8 @@ class GaitSettings:
         # only keeps F_z >= 0; a coefficient between 10 and that is a typo more likely than a foot
         _check_number("friction", self.friction, 0.0, NO_FRICTION_LIMIT, "(friction coefficient; 1e3: no limit)")
         _check_number("knee_max", self.knee_max, 0.0, math.pi, "rad")
+        if not isinstance(self.drive_limits, bool):
+            raise ValueError(f"GaitSettings.drive_limits must be True or False, got {self.drive_limits!r}")
 
     @property
     def control_points(self) -> int:

@@ -366,6 +366,8 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     for (i, _), check in zip(checks_at, checks_made):
         per_problem[problems[i].name]["gradient_check"] = check
     errors = [c["max_relative_error"] for c in checks_made if c["max_relative_error"] is not None]
+    smooth_errors = [c["max_relative_error_where_smooth"] for c in checks_made
+                     if c["max_relative_error_where_smooth"] is not None]
     result = {
         "variables": {"names": list(codesign.DESIGN_VARIABLES), "units": list(codesign.DESIGN_UNITS),
                       "low": low.tolist(), "high": high.tolist(),
@@ -386,6 +388,10 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
         "energy_reduction_vs_paper": {name: entry["energy_reduction_vs_paper"] for name, entry in per_problem.items()},
         "gradient_solves": gradient_solves,
         "gradient_check_max_rel_error": max(errors) if errors else None,
+        # where J* has no kink within the check's steps (codesign.gradient_check's one-sided differences)
+        "gradient_check_max_rel_error_where_smooth": max(smooth_errors) if smooth_errors else None,
+        "gradient_check_kinks": {problems[i].name: [v for v, k in zip(check["variables"], check["kink"]) if k]
+                                 for (i, _), check in zip(checks_at, checks_made)},
     }
     if baseline:
         say("(d) CMA-ES over the same variables, the same number of solves")
@@ -406,7 +412,8 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
     """The four studies (``optimisation_only``: study (d) alone); writes codesign.json and
     codesign_{pareto,mass_scaling,speed,optimisation}.png. The batched interior point solves every
     batch: :data:`IP_OPTIONS` for the reference gait, :data:`IP_WARM_OPTIONS` otherwise; single-shot
-    settings are shot in a segment per knot span. Study (d) runs ``starts`` designs per problem for
+    settings are shot in a segment per knot span. Every gait holds its drives' gear limits (intermittent
+    output torque, input speed: ``GaitSettings.drive_limits``). Study (d) runs ``starts`` designs per problem for
     ``iterations`` iterations. Each finished study is kept in ``out/stages``
     (:func:`biped_jax.report.outputs.stage`); ``resume`` takes those written with the same settings
     instead of solving them again."""
@@ -417,9 +424,11 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
     options = IP_WARM_OPTIONS
     if settings.segments == 1:
         settings = dataclasses.replace(settings, segments=settings.spans)
+    settings = dataclasses.replace(settings, drive_limits=True)  # a catalogue drive cannot do more
     solver = GaitSolver(settings, options)
     results = {"settings": {"spans": settings.spans, "substeps": settings.substeps, "steps": settings.steps,
                             "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,
+                            "drive_limits": settings.drive_limits,
                             "dynamics": settings.dynamics, "solver": "interior point", "starts_per_problem": starts,
                             "iterations": iterations}}
     save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731

@@ -57,8 +57,6 @@ class Problem:
         from biped_jax import codesign
         if self.supply_voltage is not None and not self.has_drive:
             raise ValueError(f"supply_voltage {self.supply_voltage!r} applies to a drive: give a motor or a gearhead")
-        if self.supply_voltage is not None and not (self.supply_voltage > 0 and self.supply_voltage < 1e4):
-            raise ValueError(f"supply_voltage must be a number of volts in (0, 1e4), got {self.supply_voltage!r}")
         design = codesign.catalogue_design(self.motor or codesign.REFERENCE_MOTOR,
                                            self.gearhead or codesign.REFERENCE_GEARHEAD, self.mass_class,
                                            supply_voltage=self.supply_voltage)
@@ -91,6 +89,8 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
     and trajectories.npz. Returns the results record."""
     say = progress or (lambda message, task=None: None)
     model = problem.model()
+    if problem.has_drive:  # the gait within the gears' torque and input speed too
+        settings = dataclasses.replace(settings, drive_limits=True)
     out.mkdir(parents=True, exist_ok=True)
     solvers = paper.study_solvers(settings)
     say(f"{problem.name}: {len(solvers.families)} starts in {solvers.coarse.settings.spans} knot spans, then the "
