@@ -95,13 +95,16 @@ def main():
     parser.add_argument("--substeps", type=int, default=8, help="Runge-Kutta steps per span (default 8, the studies')")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default="codesign_throughput", help="results file stem")
+    parser.add_argument("--no-drive-limits", action="store_true",
+                        help="leave the gears' torque and input speed limits out of the gait")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     from biped_jax import codesign
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import codesign as codesign_study
-    settings = gait_problem.GaitSettings(spans=args.spans, segments=args.segments, substeps=args.substeps)
+    settings = gait_problem.GaitSettings(spans=args.spans, segments=args.segments, substeps=args.substeps,
+                                         drive_limits=not args.no_drive_limits)
     interior = GaitSolver(settings, codesign_study.IP_OPTIONS)
     started = time.perf_counter()
     reference, = codesign.solve_designs(interior, [codesign.catalogue_design()], 0.555, 20.0)
@@ -109,6 +112,7 @@ def main():
           f"{time.perf_counter() - started:.0f} s (compiling included)", flush=True)
     rows, last = [], None
     meta = {"spans": args.spans, "segments": args.segments, "substeps": args.substeps, "speed": 0.555,
+            "drive_limits": settings.drive_limits,
             "power_limit": 20.0, "float": "float64", "options": dataclasses.asdict(interior.options)}
     for batch in args.batch:
         row, last = interior_point_batch(interior, batch, reference.x)

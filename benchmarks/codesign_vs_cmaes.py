@@ -100,13 +100,16 @@ def main():
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default="codesign_vs_cmaes", help="results file stem")
+    parser.add_argument("--no-drive-limits", action="store_true",
+                        help="leave the gears' torque and input speed limits out of the gait")
     args = parser.parse_args()
     jax.config.update("jax_enable_x64", True)
     from biped_jax import codesign
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import codesign as codesign_study
-    settings = gait_problem.GaitSettings(spans=args.spans, substeps=args.substeps)
+    settings = gait_problem.GaitSettings(spans=args.spans, substeps=args.substeps,
+                                         drive_limits=not args.no_drive_limits)
     cold = GaitSolver(settings, codesign_study.IP_OPTIONS)
     solver = cold.using(codesign.SOLVER_OPTIONS)
     paper = codesign.catalogue_design()
@@ -138,6 +141,7 @@ def main():
           f"{reach['gradient']} solves, CMA-ES after {reach['cmaes']}; gradient check at the final design: "
           f"largest relative error {check['max_relative_error']}")
     save_results(args.name, {"spans": args.spans, "substeps": args.substeps, "speed": SPEED,
+                             "drive_limits": settings.drive_limits,
                              "power_limit": POWER_LIMIT, "ratio_bounds": RATIO_BOUNDS,
                              "mass_split_bounds": codesign.MASS_SPLIT_BOUNDS,
                              "torque_constant_bounds_Nm_per_A": codesign.winding_range()}, rows, args.out)

@@ -53,6 +53,13 @@ def test_voltage_thermal_and_gear_limits_each_fail_with_their_reason():
     assert strong["failed_checks"] and all(r.startswith("thermal") for r in strong["failed_checks"])
     assert strong["feasible_without_thermal"]  # the paper's criterion has no thermal check
     assert not fast["feasible_without_thermal"]
+    # how long it walks: the transient thermal model at the check's RMS motor current; indefinitely
+    # (None) exactly where the thermal check passes
+    from biped_jax.drives import thermal
+    current = strong["rms_motor_torque_mNm"] * 1e-3 / motor.torque_constant
+    assert strong["walk_time_s"] == pytest.approx(thermal.walk_time(current, motor, thermal.load_thermal()))
+    assert 10.0 < strong["walk_time_s"] < 3600.0
+    assert fast["walk_time_s"] is None and not any(r.startswith("thermal") for r in fast["failed_checks"])
     # 3 N m RMS is above the two-stage gear's 2.25 N m continuous rating
     gear = ds.check_drive(_constant_workspace(3.0, 0.1), motor, CATALOGUE.gearhead("GP32A-28"), supply)
     assert any("continuous" in r for r in gear["failed_checks"])

@@ -16,6 +16,7 @@ import numpy as np
 
 from biped_jax import checks
 from biped_jax.drives import model as drive_model
+from biped_jax.drives import thermal
 from biped_jax.drives.model import MNM, RPM
 from biped_jax.report import outputs
 from biped_jax.robots.planar_biped import ACTUATED
@@ -93,7 +94,10 @@ def check_drive(workspace: JointWorkspace, motor: drive_model.Motor, gear: drive
     """Checks one motor and gearhead on every joint's samples outside the impact window.
 
     Returns {"feasible", "reason", "joule_energy_J", "mass_kg", "min_voltage_margin_V",
-    "rms_motor_torque_mNm", "max_motor_rpm", ...}; reason names the first failed check with numbers.
+    "rms_motor_torque_mNm", "max_motor_rpm", "walk_time_s", ...}; reason names the first failed check
+    with numbers. ``walk_time_s``: how long the most loaded motor walks this gait from the ambient
+    before its winding reaches the rated temperature (:func:`biped_jax.drives.thermal.walk_time`;
+    null where it walks indefinitely, which is the thermal check passing).
     """
     _check_parts(workspace, motor, gear, supply_voltage, window)
     drive_model.check_ratio(gear.ratio)
@@ -129,7 +133,13 @@ def check_drive(workspace: JointWorkspace, motor: drive_model.Motor, gear: drive
             "reason": failed[0] if failed else "all checks pass", "failed_checks": failed,
             "joule_energy_J": joule, "mass_kg": motor.mass + gear.mass,
             "min_voltage_margin_V": float(margin.min()), "rms_motor_torque_mNm": float(rms_motor.max() / MNM),
+            "walk_time_s": _finite_or_none(thermal.walk_time(float(rms_motor.max()) / motor.torque_constant, motor,
+                                                             thermal.load_thermal())),
             "max_motor_rpm": float(np.abs(motor_speed).max() / RPM)}
+
+
+def _finite_or_none(value: float) -> float | None:
+    return value if math.isfinite(value) else None
 
 
 def joint_verdicts(motors, heads, solution, supply_voltage: float, catalogue: drive_model.Catalogue) -> list[dict]:
@@ -148,14 +158,15 @@ def joint_verdicts(motors, heads, solution, supply_voltage: float, catalogue: dr
                          "feasible": check["feasible"], "feasible_without_thermal": check["feasible_without_thermal"],
                          "reason": check["reason"],
                          "thermal_margin": 1.0 - check["rms_motor_torque_mNm"] * MNM / motor_data.nominal_torque,
-                         "min_voltage_margin_V": check["min_voltage_margin_V"]})
+                         "min_voltage_margin_V": check["min_voltage_margin_V"], "walk_time_s": check["walk_time_s"]})
     return verdicts
 
 
 def select_drive(workspaces: list[JointWorkspace], catalogue: drive_model.Catalogue,
                  window: float = IMPACT_WINDOW) -> tuple[dict | None, list[dict]]:
     """Every winding x ratio checked on all given gaits (all must pass); feasible ones ranked by Joule
-    energy per step summed over the gaits, then mass. Returns (best or None, all candidates)."""
+    energy per step summed over the gaits, then mass. A candidate's ``walk_time_s`` is that of the gait
+    that heats it most (None: every gait indefinitely). Returns (best or None, all candidates)."""
     workspaces = checks.sequence("workspaces", workspaces, JointWorkspace, "JointWorkspace")
     if not isinstance(catalogue, drive_model.Catalogue):
         raise TypeError("catalogue must be a Catalogue (biped_jax.drives.model.load_catalogue()), got "
@@ -169,10 +180,21 @@ def select_drive(workspaces: list[JointWorkspace], catalogue: drive_model.Catalo
             candidate.update(feasible=not failed, reason=failed[0] if failed else "all checks pass",
                              feasible_without_thermal=all(r["feasible_without_thermal"] for r in results),
                              joule_energy_J=float(sum(r["joule_energy_J"] for r in results)),
-                             min_voltage_margin_V=min(r["min_voltage_margin_V"] for r in results))
+                             min_voltage_margin_V=min(r["min_voltage_margin_V"] for r in results),
+                             walk_time_s=min((r["walk_time_s"] for r in results if r["walk_time_s"] is not None),
+                                             default=None))
             candidates.append(candidate)
     feasible = sorted((c for c in candidates if c["feasible"]), key=lambda c: (c["joule_energy_J"], c["mass_kg"]))
     return (feasible[0] if feasible else None), candidates
+
+
+def longest_walk_without_thermal(candidates: list[dict]) -> dict | None:
+    """Among the candidates that pass every check but the thermal one, the one that walks longest before
+    its winding reaches the rated temperature (a candidate that walks indefinitely passes the thermal
+    check too, and comes first); None if none passes."""
+    loose = [c for c in candidates if c["feasible_without_thermal"]]
+    return max(loose, key=lambda c: (math.inf if c["walk_time_s"] is None else c["walk_time_s"], -c["joule_energy_J"]),
+               default=None)
 
 
 def best_without_thermal(candidates: list[dict]) -> dict | None:

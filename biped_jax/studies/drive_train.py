@@ -13,6 +13,7 @@ from biped_jax.drives.selection import (
     IMPACT_WINDOW,
     JointWorkspace,
     best_without_thermal,
+    longest_walk_without_thermal,
     plot_motor_workspace,
     requirements,
     select_drive,
@@ -23,6 +24,14 @@ from biped_jax.report import outputs
 MASS_CLASS_GAITS = {"12kg": ("M1", "M2"), "18kg": ("M3", "M4")}
 #: The paper's drive: the 42 V winding of the RE 25 on the 66:1 GP 32 A.
 PAPER_CHOICE = ("RE25-42V", "GP32A-66.22")
+
+
+def _walk(seconds: float | None) -> str:
+    """How long a drive walks the study's gaits from 25 C before its winding reaches the rated
+    temperature (:mod:`biped_jax.drives.thermal`), in words."""
+    if seconds is None:
+        return "walks indefinitely"
+    return f"walks {seconds / 60:.1f} min from 25 C before its winding reaches its rated temperature"
 
 
 def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
@@ -47,6 +56,7 @@ def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
         best, candidates = select_drive(workspaces, catalogue)
         paper = next(c for c in candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
         loose = best_without_thermal(candidates)
+        enduring = longest_walk_without_thermal(candidates)
         slow_best, slow_candidates = select_drive(workspaces[:1], catalogue)
         slow_paper = next(c for c in slow_candidates if (c["motor"], c["gearhead"]) == PAPER_CHOICE)
         entry = {"mass_class": mass_class, "mass_kg": gaits[available[0]][1]["mass_kg"], "gaits": available,
@@ -54,12 +64,15 @@ def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
                  "recommended": None if best is None else {k: best[k] for k in (
                      "part", "motor", "gearhead", "nominal_voltage_V", "ratio", "joule_energy_J", "mass_kg")},
                  "paper_choice": {k: paper[k] for k in ("part", "feasible", "feasible_without_thermal", "reason",
-                                                        "joule_energy_J")},
+                                                        "joule_energy_J", "walk_time_s")},
                  "recommended_without_thermal_check": None if loose is None else loose["part"],
+                 "longest_walk_without_thermal_check": None if enduring is None else {
+                     k: enduring[k] for k in ("part", "walk_time_s", "joule_energy_J", "mass_kg")},
                  f"recommended_for_{available[0]}_only": None if slow_best is None else slow_best["part"],
                  f"paper_choice_for_{available[0]}_only": {k: slow_paper[k] for k in ("feasible", "reason")},
                  "candidates": [{k: c[k] for k in ("part", "ratio", "nominal_voltage_V", "feasible",
-                                                   "feasible_without_thermal", "reason", "joule_energy_J", "mass_kg")}
+                                                   "feasible_without_thermal", "reason", "joule_energy_J", "mass_kg",
+                                                   "walk_time_s")}
                                 for c in candidates]}
         report.append(entry)
         r = table6
@@ -75,7 +88,11 @@ def run_drive_study(out, gaits: dict[str, tuple[JointWorkspace, dict]]) -> dict:
                   f"- Paper's criterion (speed-torque line and gear limits, no thermal check): "
                   f"**{loose['part'] if loose else 'none feasible'}**",
                   f"- The paper's 42 V + 66:1: {'feasible' if paper['feasible'] else 'fails: ' + paper['reason']}"
-                  f" (under the paper's criterion: {'passes' if paper['feasible_without_thermal'] else 'fails'})",
+                  f" (under the paper's criterion: {'passes' if paper['feasible_without_thermal'] else 'fails'});"
+                  f" {_walk(paper['walk_time_s'])}",
+                  "- The longest walk among the pairs passing the paper's criterion: "
+                  + ("none passes" if enduring is None
+                     else f"**{enduring['part']}**, {_walk(enduring['walk_time_s'])}"),
                   f"- For {available[0]} alone: {slow_best['part'] if slow_best else 'none feasible'} "
                   f"(the paper's choice: {'feasible' if slow_paper['feasible'] else slow_paper['reason']})", "",
                   f"{sum(c['feasible'] for c in candidates)} of {len(candidates)} winding x ratio pairs pass.", ""]
