@@ -17,7 +17,7 @@ import numpy as np
 from biped_jax.dynamics import interface
 from biped_jax.dynamics.mujoco_c import MujocoDynamics
 from biped_jax.gait import problem as gait_problem
-from biped_jax.robots.planar_biped import ACTUATED_INDEX
+from biped_jax.robots.planar_biped import pinned_coordinates
 
 
 class CGaitRollout:
@@ -29,15 +29,9 @@ class CGaitRollout:
         self.dynamics = MujocoDynamics.nominal(mass_class)
 
     def _acceleration(self, theta: float, rate: float, ref) -> float:
-        q, qd = self._assemble(theta, ref[0]), self._assemble(rate, ref[1])
+        q, qd = pinned_coordinates(theta, ref[0]), pinned_coordinates(rate, ref[1])
         mass, bias, _ = self.dynamics.terms(q, qd)
-        return float(gait_problem.stance_acceleration(mass, bias, ref[2]))
-
-    @staticmethod
-    def _assemble(theta, actuated) -> np.ndarray:
-        full = np.zeros(5)
-        full[0], full[ACTUATED_INDEX] = theta, actuated
-        return full
+        return float(gait_problem.zero_dynamics_acceleration(mass, bias, ref[2]))
 
     def simulate(self, x: np.ndarray, speed: float, step_length: float) -> gait_problem.GaitTrajectory:
         """The step of decision vector ``x`` (shape (settings.size,)) at ``speed`` m/s over
@@ -68,9 +62,9 @@ class CGaitRollout:
             rate.append(y[1])
         rows = {name: [] for name in ("q", "qd", "qdd", "u", "force", "sites")}
         for k in range(len(s)):
-            q, qd = self._assemble(theta[k], at_grid[0, k]), self._assemble(rate[k], at_grid[1, k])
+            q, qd = pinned_coordinates(theta[k], at_grid[0, k]), pinned_coordinates(rate[k], at_grid[1, k])
             mass, bias, data = self.dynamics.terms(q, qd)
-            qdd = self._assemble(gait_problem.stance_acceleration(mass, bias, at_grid[2, k]), at_grid[2, k])
+            qdd = pinned_coordinates(gait_problem.zero_dynamics_acceleration(mass, bias, at_grid[2, k]), at_grid[2, k])
             force, positions = self.dynamics.outputs(q, qd, qdd, data)
             rows["sites"].append(positions)
             rows["force"].append(force)

@@ -49,7 +49,7 @@ from biped_jax.gait.constraints import (
     scaled_constraints,
     violations,
 )
-from biped_jax.gait.rollout import actuated_torque, simulate, stance_acceleration
+from biped_jax.gait.rollout import actuated_torque, simulate, zero_dynamics_acceleration
 from biped_jax.gait.settings import (
     DYNAMICS,
     NO_FRICTION_LIMIT,
@@ -122,7 +122,7 @@ __all__ = [
     "segment_starts",
     "simpson_weights",
     "simulate",
-    "stance_acceleration",
+    "zero_dynamics_acceleration",
     "stance_nodes",
     "violations",
 ]

@@ -11,21 +11,13 @@ from biped_jax.dynamics import mjx_biped
 from biped_jax.dynamics.interface import stance_dynamics, touchdown
 from biped_jax.gait.settings import GaitModel, GaitSettings, GaitTrajectory
 from biped_jax.gait.splines import grid, reference, simpson_weights, stance_nodes
-from biped_jax.robots.planar_biped import ACTUATED_INDEX
+from biped_jax.robots.planar_biped import ACTUATED_INDEX, pinned_coordinates
 
 
 
 # ----------------------------------------------------------------------------- dynamics
 
-def _assemble(theta, actuated):
-    """Pinned coordinates (..., 5) from the stance coordinate (...,) and the actuated (..., 4)."""
-    full = jnp.zeros(actuated.shape[:-1] + (5,), actuated.dtype)
-    return full.at[..., 0].set(theta).at[..., ACTUATED_INDEX].set(actuated)
-
-
-
-
-def stance_acceleration(mass, bias, actuated_acceleration):
+def zero_dynamics_acceleration(mass, bias, actuated_acceleration):
     """The zero dynamics: theta_dd from the unactuated row of M qdd + bias = B u. mass (5, 5), bias =
     qfrc_bias - qfrc_passive (5,), actuated_acceleration (4,) in (H1, K1, H2, K2) order."""
     a = ACTUATED_INDEX
@@ -47,9 +39,9 @@ def rk4(dynamics, state, inputs):
     start, middle, end, dt = inputs
 
     def acceleration(theta, theta_dot, ref):
-        q, qd = _assemble(theta, ref[0]), _assemble(theta_dot, ref[1])
+        q, qd = pinned_coordinates(theta, ref[0], jnp), pinned_coordinates(theta_dot, ref[1], jnp)
         mass, bias, _ = dynamics.terms(q, qd)
-        return stance_acceleration(mass, bias, ref[2])
+        return zero_dynamics_acceleration(mass, bias, ref[2])
 
     theta, rate = state
     k1 = (rate, acceleration(theta, rate, start))
@@ -71,9 +63,9 @@ def shoot(dynamics, node, starts, middles, ends, dt):
 def sample_outputs(dynamics, theta, rate, ref):
     """The pinned state, accelerations, torques, ground force and points of interest at one sample from
     the stance state and the reference (3, 4)."""
-    q, qd = _assemble(theta, ref[0]), _assemble(rate, ref[1])
+    q, qd = pinned_coordinates(theta, ref[0], jnp), pinned_coordinates(rate, ref[1], jnp)
     mass, bias, state = dynamics.terms(q, qd)
-    qdd = _assemble(stance_acceleration(mass, bias, ref[2]), ref[2])
+    qdd = pinned_coordinates(zero_dynamics_acceleration(mass, bias, ref[2]), ref[2], jnp)
     force, positions = dynamics.outputs(q, qd, qdd, state)
     return q, qd, qdd, actuated_torque(mass, bias, qdd), force, positions
 

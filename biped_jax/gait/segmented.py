@@ -24,7 +24,7 @@ from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
 from biped_jax.gait.settings import GaitSettings, with_limit_fraction
 from biped_jax.gait.splines import basis, grid, simpson_weights
 from biped_jax.optim.local_derivatives import LocalProblem
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP
+from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP, pinned_coordinates
 
 
 def _control_columns(settings: GaitSettings) -> np.ndarray:
@@ -183,8 +183,7 @@ class _Split:
         first_basis = jnp.asarray(np.stack(basis(self.settings, np.zeros(1)))[:, 0, :self.settings.degree + 1])
         points = start[2:].reshape(self.settings.degree + 1, 4)
         ref0 = (first_basis @ points) * time_scale(step_time)[:, 0]
-        q0, qd0 = (jnp.zeros(5, columns.dtype).at[0].set(value).at[ACTUATED_INDEX].set(ref)
-                   for value, ref in ((start[0], ref0[0]), (start[1], ref0[1])))
+        q0, qd0 = (pinned_coordinates(value, ref, jnp) for value, ref in ((start[0], ref0[0]), (start[1], ref0[1])))
         _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
         ends = {"q0": q0, "qd0": qd0, "swing_foot_end": positions[-1, 0], "swing_foot_velocity": foot_velocity,
                 "touchdown": touchdown(dynamics, q[-1], qd[-1])}

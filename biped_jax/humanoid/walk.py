@@ -106,11 +106,9 @@ def _chunk_program(mass_class: str):
 def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitReference, mass_class: str):
     """(qpos, qvel) of the planarised humanoid at the optimal step's start, leg l standing at x = 0."""
     step_time = float(reference.step_time)
-    q0 = np.zeros(5)
-    q0[0], q0[planar_biped.ACTUATED_INDEX] = reference.stance_angle[0], reference.joints[0]
-    qd0 = np.zeros(5)
-    qd0[0] = reference.stance_angle_slope[0] / step_time
-    qd0[planar_biped.ACTUATED_INDEX] = np.asarray(reference.joint_slope[0]) / step_time
+    q0 = planar_biped.pinned_coordinates(reference.stance_angle[0], np.asarray(reference.joints[0], dtype=float))
+    qd0 = planar_biped.pinned_coordinates(reference.stance_angle_slope[0] / step_time,
+                                          np.asarray(reference.joint_slope[0], dtype=float) / step_time)
     pinned = mjx_biped.load_planar_biped(mass_class).pinned
     qf, qfd = (np.asarray(a) for a in mjx_biped.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
     qpos, qvel = np.zeros(mj_model.nq), np.zeros(mj_model.nv)

@@ -16,6 +16,18 @@ N_PINNED, N_FLOATING, N_ACTUATED = 5, 7, 4
 
 #: Pinned coordinates of the actuated joints in (H1, K1, H2, K2) order.
 ACTUATED_INDEX = np.array([2, 1, 3, 4])
+#: For pinned coordinates 1-4 (knee1, hip1, hip2, knee2): the column of each in (H1, K1, H2, K2) order.
+_ACTUATED_OF_PINNED = [list(ACTUATED_INDEX).index(p) for p in range(1, N_PINNED)]
+
+
+def pinned_coordinates(stance, actuated, xp=np):
+    """Pinned coordinates (..., 5) from the stance angle (...) and the actuated joints in (H1, K1, H2, K2)
+    order (..., 4): positions, rates or accelerations alike. ``xp``: ``numpy`` or ``jax.numpy``."""
+    actuated = xp.asarray(actuated)
+    stance = xp.broadcast_to(xp.asarray(stance, dtype=actuated.dtype), actuated.shape[:-1])
+    return xp.stack([stance] + [actuated[..., j] for j in _ACTUATED_OF_PINNED], axis=-1)
+
+
 #: Relabelling in (H1, K1, H2, K2) order: the next step's (H1, K1, H2, K2) is this step's (H2, K2, H1, K1).
 SWAP = np.array([2, 3, 0, 1])
 
