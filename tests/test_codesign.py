@@ -242,7 +242,8 @@ def test_the_gait_holds_the_gears_torque_and_input_speed(design_solver, ratio_ba
     tight = dataclasses.replace(
         centre, gear_torque_limit=centre.gear_torque_limit.at[0].set(0.92 * torque[:, 0].max()),
         gear_speed_limit=centre.gear_speed_limit.at[1].set(0.92 * motor_speed[:, 1].max()))
-    limited, = codesign.solve_designs(design_solver, [tight], SPEED, POWER_LIMIT, x0=solution.x[None])
+    # in the batch size of 4 the module compiled (a batch of one would compile another program)
+    limited = codesign.solve_designs(design_solver, [tight] * 4, SPEED, POWER_LIMIT, x0=np.tile(solution.x, (4, 1)))[0]
     assert limited.status == nlp.CONVERGED, (limited.status, limited.violations)
     u, omega = np.abs(np.asarray(limited.trajectory.u)), np.abs(np.asarray(limited.trajectory.joint_speed))
     assert u[:, 0].max() <= 0.92 * torque[:, 0].max() + 1e-6

@@ -68,7 +68,8 @@ class ImpactSystem:
 
 def floating_coordinates(hip, q, xp=jnp):
     """Floating-base coordinates (7,) from the hip's world (x, z) and the pinned angles q (5,); ``xp``:
-    ``jax.numpy`` or ``numpy``."""
+    ``jax.numpy`` or ``numpy``. Linear in (hip, q): given the hip's velocity and the rates it gives the
+    floating base's rates."""
     stance, knee1, hip1, hip2, knee2 = q
     return xp.stack([hip[0], hip[1], stance - knee1 - hip1, hip1, knee1, hip2, knee2])
 

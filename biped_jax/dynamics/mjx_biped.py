@@ -164,18 +164,6 @@ def generalized_gravity(model, q: jax.Array) -> jax.Array:
 
 # ----------------------------------------------------------------------------- single support
 
-def stance_step(pinned, state: tuple[jax.Array, jax.Array], u: jax.Array):
-    """One step of single support in MJX under torques u (H1, K1, H2, K2) (N m), with the model's own
-    integrator and ``opt.timestep``: ``state`` = (q, qd), shapes (5,), rad and rad/s. Returns (the next
-    state, (qdd (5,) rad/s^2, the ground force (F_x, F_z) N)), both from the step's one forward pass, as
-    ``mjx.step`` would; traceable (:meth:`MjxDynamics.step`)."""
-    q, qd = state
-    data = mjx.forward(pinned, mjx.make_data(pinned).replace(qpos=q, qvel=qd, ctrl=u))
-    force = stance_force(pinned, data)
-    data = _INTEGRATORS[int(pinned.opt.integrator)](pinned, data)
-    return (data.qpos, data.qvel), (data.qacc, force)
-
-
 # mjx.step's integrator dispatch, split so the ground force comes from the same forward pass.
 _INTEGRATORS = {int(mjx.IntegratorType.EULER): mjx.euler,
                 int(mjx.IntegratorType.RK4): mjx.rungekutta4,
@@ -270,7 +258,14 @@ class MjxDynamics:
         return swing_foot(self.pinned, q, qd)
 
     def step(self, state, u):
-        return stance_step(self.pinned, state, u)
+        """One step in MJX under torques u (4,), N m, with the model's own integrator and
+        ``opt.timestep``: (q, qd) -> ((q, qd) next, (qdd (5,), ground force (F_x, F_z) N)), both from the
+        step's one forward pass, as ``mjx.step`` would."""
+        q, qd = state
+        data = mjx.forward(self.pinned, mjx.make_data(self.pinned).replace(qpos=q, qvel=qd, ctrl=u))
+        force = stance_force(self.pinned, data)
+        data = _INTEGRATORS[int(self.pinned.opt.integrator)](self.pinned, data)
+        return (data.qpos, data.qvel), (data.qacc, force)
 
     def impact_system(self, q, qd) -> impact.ImpactSystem:
         qf, qfd = pinned_to_floating(self.pinned, q, qd)

@@ -17,7 +17,7 @@ import numpy as np
 
 from biped_jax.dynamics import impact
 from biped_jax.robots import registry
-from biped_jax.robots.planar_biped import ACTUATED_INDEX, GAIT_SITES, STANCE_BODY
+from biped_jax.robots.planar_biped import GAIT_SITES, STANCE_BODY
 
 #: The model arrays a design changes (``biped_jax.robots.design.apply_design``) and the step reads,
 #: copied from an MJX model into MuJoCo's; the derived constants follow by ``mj_setConst``.
@@ -121,9 +121,8 @@ class MujocoDynamics:
 
     def impact_system(self, q, qd) -> impact.ImpactSystem:
         hip, hip_velocity = self._pinned_site(q, qd, "hip")
-        qf = impact.floating_coordinates(hip, q, np)
-        # the floating base's rates: the hip's velocity, the torso pitch's rate, the joints' rates
-        qfd = np.array([*hip_velocity, qd[0] - qd[1] - qd[2], *qd[ACTUATED_INDEX]])
+        # the map is linear in (hip, angles): the rates map as the coordinates do
+        qf, qfd = impact.floating_coordinates(hip, q, np), impact.floating_coordinates(hip_velocity, qd, np)
         m, d = self.floating, self.floating_data
         d.qpos[:] = qf
         mujoco.mj_fwdPosition(m, d)

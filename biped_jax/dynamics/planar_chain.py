@@ -244,17 +244,6 @@ def euler(q: jax.Array, qd: jax.Array, qdd: jax.Array, dt) -> tuple[jax.Array, j
     return q + dt * qd_next, qd_next
 
 
-def stance_step(chain: PlanarChain, model, state: tuple[jax.Array, jax.Array], u: jax.Array):
-    """One step of single support under actuator torques u, semi-implicit Euler with
-    ``model.opt.timestep`` (as MJX's ``euler``; explicit damping: MJX's with ``EULERDAMP`` disabled,
-    identical without damping): ``state`` = (q, qd), (n,) each. Returns (the next state, (qdd (n,),
-    the root (stance) force (2,))), as :meth:`biped_jax.dynamics.mjx_biped.MjxDynamics.step` does in MJX."""
-    q, qd = state
-    qdd, kin = forward_dynamics(chain, model, q, qd, u)
-    force = root_force(chain, model, kin, qdd)
-    return euler(q, qd, qdd, model.opt.timestep), (qdd, force)
-
-
 def impact_system(chain: PlanarChain, model, q: jax.Array, qd: jax.Array) -> impact.ImpactSystem:
     """The touchdown's impact in the pinned chain's angles extended by the translation (x, z) of its
     root: every point moves as r = p + r_pinned(q), so the inertia is
@@ -314,7 +303,13 @@ class ChainDynamics:
         return site_motion(self.chain, self.pinned, q, qd, "foot2")
 
     def step(self, state, u):
-        return stance_step(self.chain, self.pinned, state, u)
+        """One step under actuator torques u, semi-implicit Euler with ``opt.timestep`` (as MJX's
+        ``euler``; explicit damping: MJX's with ``EULERDAMP`` disabled, identical without damping):
+        (q, qd) -> ((q, qd) next, (qdd (n,), the root (stance) force (2,)))."""
+        q, qd = state
+        qdd, kin = forward_dynamics(self.chain, self.pinned, q, qd, u)
+        force = root_force(self.chain, self.pinned, kin, qdd)
+        return euler(q, qd, qdd, self.pinned.opt.timestep), (qdd, force)
 
     def impact_system(self, q, qd) -> impact.ImpactSystem:
         return impact_system(self.chain, self.pinned, q, qd)
