@@ -218,6 +218,11 @@ def with_variables(design: DriveDesign, theta, catalogue: drive_model.Catalogue 
     return with_knee_drive_offset(with_mass_split(design, theta[SPLIT]), theta[PLACEMENT][0])
 
 
+#: Each design of a batch at its own variables (B, ...) x (B, V): one compiled program per batch size
+#: for every co-optimisation (a jitted map built inside a call would be traced again each call).
+_designs_with_variables = jax.jit(jax.vmap(with_variables))
+
+
 @functools.lru_cache(maxsize=8)
 def _envelope(problem: nlp.ConstrainedProblem) -> Callable:
     """The jitted envelope gradient of ``problem`` (a gait solver's) in the design variables: one per
@@ -500,17 +505,16 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
                          (("speed", speed), ("power_limit", power_limit), ("step_length", step_length))))
     say = progress or (lambda message: None)
     gradient = design_gradient(solver)
-    catalogue = drive_model.load_catalogue()
     base = stack(designs)
+    designs_at = lambda t: unstack(_designs_with_variables(base, jnp.asarray(t)))  # noqa: E731
     theta = np.clip(theta, low, high)
     rates = np.ones(len(DESIGN_VARIABLES))
     rates[SPLIT] = SPLIT_STEP_SCALE  # each variable's step per unit of the design's
     step = np.full(len(designs), max_step)
-    apply = jax.jit(jax.vmap(lambda d, t: with_variables(d, t, catalogue)))
     adam = optax.inject_hyperparams(optax.adam)(learning_rate=max_step)
     state = jax.vmap(adam.init)(jnp.asarray(theta))
     if solutions is None:
-        solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(theta))), speed, power_limit,
+        solutions = solve_designs(solver, designs_at(theta), speed, power_limit,
                                   step_length, x0=x0, summary=progress)
     elif len(solutions) != len(designs):
         raise ValueError(f"give one solution per design: {len(solutions)} for {len(designs)} designs")
@@ -547,7 +551,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
                                              jnp.asarray(low), jnp.asarray(high))
         trial = np.where(moving[:, None], np.asarray(trial), theta)
         x_warm = jnp.stack([jnp.asarray(s.x) for s in solutions])
-        trial_solutions = solve_designs(solver, unstack(apply(base, jnp.asarray(trial))), speed, power_limit,
+        trial_solutions = solve_designs(solver, designs_at(trial), speed, power_limit,
                                         step_length, x0=x_warm, summary=progress)
         better = moving & np.array([t.status == nlp.CONVERGED and t.cost < s.cost
                                     for s, t in zip(solutions, trial_solutions)])
@@ -559,7 +563,7 @@ def co_optimise(solver, designs: list[DriveDesign], speed, power_limit, step_len
         best = min((s.cost for s in solutions if s.status == nlp.CONVERGED), default=math.nan)
         say(f"co-design iteration {k + 1}/{iterations}: {int(better.sum())} of {len(designs)} designs "
             f"improved, best Joule energy {best:.4g} J")
-    path.designs = unstack(apply(base, jnp.asarray(theta)))
+    path.designs = designs_at(theta)
     path.solutions = solutions
     path.stationary = stationary.tolist()
     return path

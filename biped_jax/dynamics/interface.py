@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from biped_jax.dynamics import impact, mjx_biped, planar_chain
+from biped_jax.dynamics.mujoco_c import MujocoDynamics
 from biped_jax.robots.planar_biped import N_ACTUATED, N_PINNED
 
 
@@ -75,14 +76,9 @@ class StanceTrajectory:
     ground_force: jax.Array
 
 
-def _mujoco(biped: mjx_biped.PlanarBiped):
-    from biped_jax.dynamics.mujoco_c import MujocoDynamics  # MuJoCo C's buffers: only where asked for
-    return MujocoDynamics.of(biped)
-
-
 #: The backends by name: each builds the backend of a :class:`~biped_jax.dynamics.mjx_biped.PlanarBiped`.
 DYNAMICS = {"chain": lambda biped: planar_chain.ChainDynamics.of(biped.pinned),
-            "mjx": mjx_biped.MjxDynamics.of, "mujoco": _mujoco}
+            "mjx": mjx_biped.MjxDynamics.of, "mujoco": MujocoDynamics.of}
 
 #: The backends that trace under ``jax.jit`` (the gait optimiser's choices).
 TRACEABLE = ("chain", "mjx")

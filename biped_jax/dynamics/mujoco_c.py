@@ -114,8 +114,7 @@ class MujocoDynamics:
         d.ctrl[:] = u
         mujoco.mj_forward(m, d)  # mj_step's forward pass, with the ground force read from it
         qdd = d.qacc.copy()
-        mujoco.mj_rnePostConstraint(m, d)
-        force = d.cfrc_int[STANCE_BODY, [3, 5]].copy()
+        force, _ = self.outputs(state[0], state[1], qdd, d)
         _INTEGRATORS[int(m.opt.integrator)](m, d)
         return (d.qpos.copy(), d.qvel.copy()), (qdd, force)
 

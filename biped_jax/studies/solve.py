@@ -45,39 +45,27 @@ class Problem:
         return self.motor is not None or self.gearhead is not None
 
     @property
+    def parts(self) -> tuple[str, str]:
+        """(motor, gearhead) catalogue names of the drive, the paper's where one is not given."""
+        from biped_jax.codesign import REFERENCE_GEARHEAD, REFERENCE_MOTOR
+        return self.motor or REFERENCE_MOTOR, self.gearhead or REFERENCE_GEARHEAD
+
+    @property
     def name(self) -> str:
         name = f"{self.mass_class}, {self.speed:g} m/s, L = {self.step_length:g} m, M_W = {self.power_limit:g} W"
-        if self.has_drive:
-            drive = self.drive_design()
-            name += f", {drive.motor} + {drive.gearhead}"
-        return name
-
-    def drive_design(self):
-        """The catalogue design of the drive (ValueError naming an unknown part or a bad voltage)."""
-        from biped_jax import codesign
-        if self.supply_voltage is not None and not self.has_drive:
-            raise ValueError(f"supply_voltage {self.supply_voltage!r} applies to a drive: give a motor or a gearhead")
-        design = codesign.catalogue_design(self.motor or codesign.REFERENCE_MOTOR,
-                                           self.gearhead or codesign.REFERENCE_GEARHEAD, self.mass_class,
-                                           supply_voltage=self.supply_voltage)
-        return _Drive(design, self.motor or codesign.REFERENCE_MOTOR, self.gearhead or codesign.REFERENCE_GEARHEAD)
+        return name + (", {} + {}".format(*self.parts) if self.has_drive else "")
 
     def model(self) -> gait_problem.GaitModel:
-        """The gait problem (ValueError naming a bad value, before anything compiles)."""
+        """The gait problem (ValueError naming a bad value, an unknown part or a voltage without a drive,
+        before anything compiles)."""
         if not self.has_drive:
             if self.supply_voltage is not None:
-                self.drive_design()  # names the voltage without a drive
+                raise ValueError(f"supply_voltage {self.supply_voltage!r} applies to a drive: give a motor or a "
+                                 "gearhead")
             return gait_problem.gait_model(self.mass_class, self.speed, self.power_limit, self.step_length)
         from biped_jax import codesign
-        return codesign.design_gait_model(self.drive_design().design, self.speed, self.power_limit,
-                                          self.step_length)
-
-
-@dataclasses.dataclass(frozen=True)
-class _Drive:
-    design: object  # codesign.DriveDesign
-    motor: str
-    gearhead: str
+        design = codesign.catalogue_design(*self.parts, self.mass_class, supply_voltage=self.supply_voltage)
+        return codesign.design_gait_model(design, self.speed, self.power_limit, self.step_length)
 
 
 def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings = paper.STUDY_SETTINGS,
@@ -113,7 +101,7 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
                    f"{'-' if minimum['min_power_limit_W'] is None else format(minimum['min_power_limit_W'], '.3f')} W "
                    f"(kept on {solvers.fine.refined_settings.steps} steps; status {minimum['min_power_status']})"]
     if problem.has_drive:
-        results["drives"] = _drive_check(problem, solution)
+        results["drives"] = _drive_check(problem, model, solution)
         tables += ["", "## The drive's catalogue check per joint", "", "| joint | motor | gearhead | verdict | "
                    "thermal margin |", "|---|---|---|---|---|"]
         tables += [f"| {v['joint']} | {v['motor']} | {v['gearhead']} | {v['reason']} | {v['thermal_margin']:.2f} |"
@@ -127,13 +115,12 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
     return results
 
 
-def _drive_check(problem: Problem, solution) -> dict:
-    """The catalogue check of the problem's drive at every joint on the solved gait."""
+def _drive_check(problem: Problem, model: gait_problem.GaitModel, solution) -> dict:
+    """The catalogue check of the problem's drive at every joint on the solved gait of ``model``."""
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection
-    catalogue = drive_model.load_catalogue()
-    drive = problem.drive_design()
-    voltage = catalogue.supply_voltage if problem.supply_voltage is None else problem.supply_voltage
-    joints = selection.joint_verdicts((drive.motor,) * 4, (drive.gearhead,) * 4, solution, voltage, catalogue)
-    return {"motor": drive.motor, "gearhead": drive.gearhead, "supply_voltage_V": voltage,
+    motor, gearhead = problem.parts
+    voltage = float(model.drives.supply_voltage)
+    joints = selection.joint_verdicts((motor,) * 4, (gearhead,) * 4, solution, voltage, drive_model.load_catalogue())
+    return {"motor": motor, "gearhead": gearhead, "supply_voltage_V": voltage,
             "passes_catalogue_check": all(v["feasible"] for v in joints), "joints": joints}
