@@ -128,6 +128,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="bound on every joint's |qdot u|, W (default 20)")
     own.add_argument("--smallest-power-limit", action="store_true",
                      help="also find the smallest power limit at which the model still walks")
+    own.add_argument("--free-step-length", type=_number("free-step-length", 0.0, 1.0), nargs=2, default=None,
+                     metavar=("LOW", "HIGH"),
+                     help="then free the step length within [LOW, HIGH] m (holding --step-length, the start): "
+                          "the gait and step length of least energy per metre at --speed")
     own.add_argument("--motor", default=None,
                      help="catalogue motor at every joint (e.g. RE25-42V; default: ideal drives, the paper's "
                           "problem; with --gearhead alone RE25-42V): the robot carries the drives, J is the "

@@ -299,13 +299,14 @@ def run_codesign(args) -> int:
     return 0
 
 
-def solve(out: Path, problem, settings, smallest_power_limit: bool = False) -> dict:
+def solve(out: Path, problem, settings, smallest_power_limit: bool = False, free_step_length=None) -> dict:
     """One problem of the user's own with a live progress display; see :mod:`biped_jax.studies.solve`."""
     from biped_jax.studies import solve as solve_study
 
     started = time.perf_counter()
-    with live_progress(("starts:", "refined space:", "smallest power limit")) as progress:
-        results = solve_study.run_solve(out, problem, settings, smallest_power_limit, progress)
+    with live_progress(("starts:", "refined space:", "smallest power limit", "free step length")) as progress:
+        results = solve_study.run_solve(out, problem, settings, smallest_power_limit, progress,
+                                        free_step_length=free_step_length)
     record = results["solution"]
     check = record["refinement"]
     console.print(f"{problem.name}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -315,6 +316,11 @@ def solve(out: Path, problem, settings, smallest_power_limit: bool = False) -> d
         console.print("smallest feasible M_W " + ("-" if minimum["min_power_limit_W"] is None
                                                   else f"{minimum['min_power_limit_W']:.3f} W")
                       + f" ({minimum['min_power_status']})")
+    if "free_step_length" in results:
+        free = results["free_step_length"]
+        console.print(f"step length free: L = {free['step_length_m']:.4f} m ({free['solution']['status']}), J/L = "
+                      f"{free['cost_per_metre']:.4g} against {free['fixed_cost_per_metre']:.4g} at "
+                      f"{problem.step_length:g} m")
     console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
                   f"trajectories.npz in {time.perf_counter() - started:.0f} s")
     return results
@@ -329,6 +335,11 @@ def check_solve(args):
     configure_jax()
     try:
         problem.model()
+        if args.free_step_length is not None:
+            from biped_jax.gait.solver import check_step_bounds
+            from biped_jax.robots.specs import PLANAR_SPECS
+            check_step_bounds(tuple(args.free_step_length), [problem.step_length],
+                              PLANAR_SPECS[problem.mass_class].leg_length)
     except ValueError as error:
         args.parser.error(str(error))
     return problem, _settings(args)
@@ -336,7 +347,7 @@ def check_solve(args):
 
 def run_solve(args) -> int:
     problem, settings = getattr(args, "checked", None) or check_solve(args)  # checked once by cli.main
-    solve(args.out, problem, settings, args.smallest_power_limit)
+    solve(args.out, problem, settings, args.smallest_power_limit, args.free_step_length)
     return 0
 
 

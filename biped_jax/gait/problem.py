@@ -59,10 +59,12 @@ from biped_jax.gait.settings import (
     GaitSettings,
     GaitTrajectory,
     LimitParams,
+    StepParams,
     check_problem,
     gait_model,
     refined,
     with_limit_fraction,
+    with_step_fraction,
 )
 from biped_jax.gait.splines import (
     basis,
@@ -90,6 +92,7 @@ __all__ = [
     "IMPULSE_SCALE",
     "LENGTH_SCALE",
     "LimitParams",
+    "StepParams",
     "NO_FRICTION_LIMIT",
     "NO_POWER_LIMIT",
     "POWER_SCALE",
@@ -118,6 +121,7 @@ __all__ = [
     "reference",
     "refined",
     "with_limit_fraction",
+    "with_step_fraction",
     "scaled_constraints",
     "segment_starts",
     "simpson_weights",

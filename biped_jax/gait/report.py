@@ -54,7 +54,8 @@ def results_record(solution: GaitSolution) -> dict:
     return {
         "model": solution.name, "mass_kg": round(solution.mass_kg, 6), "speed_mps": solution.speed_mps,
         "power_limit_W": solution.power_limit_W, "step_length_m": solution.step_length_m,
-        "status": solution.status, "cost": solution.cost, "t_f": solution.step_time_s,
+        "status": solution.status, "cost": solution.cost, "cost_per_metre": solution.energy_per_metre,
+        "t_f": solution.step_time_s,
         "max_violation": solution.max_violation,
         "violations": {name: {"value": value, "unit": CONSTRAINT_GROUPS[name][1]}
                        for name, value in solution.violations.items()},

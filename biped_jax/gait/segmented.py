@@ -21,7 +21,7 @@ from biped_jax.dynamics import mjx_biped
 from biped_jax.dynamics.interface import stance_dynamics, touchdown
 from biped_jax.gait import constraints
 from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
-from biped_jax.gait.settings import GaitSettings, with_limit_fraction
+from biped_jax.gait.settings import GaitSettings, with_limit_fraction, with_step_fraction
 from biped_jax.gait.splines import basis, grid, simpson_weights
 from biped_jax.optim.local_derivatives import LocalProblem
 from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP, pinned_coordinates
@@ -66,19 +66,31 @@ def _layout(settings: GaitSettings):
     return first, window, data
 
 
+#: The problem kinds the split poses: the energy problem in x, and two with a last column beside x:
+#: "limit" t, the power limit t M_W0 (:class:`~biped_jax.gait.settings.LimitParams`), and "step" l, the
+#: step length l L0 (:class:`~biped_jax.gait.settings.StepParams`).
+KINDS = ("energy", "limit", "step")
+
+
+def step_bounds(fraction, params) -> jax.Array:
+    """The free step length's bound rows (g <= 0), (2,): low - l and l - high."""
+    return jnp.stack([params.low - fraction, fraction - params.high])
+
+
 class _Split:
-    """Builds the split for one settings, biped and problem kind ("energy", or "limit": a last column t
-    with the power limit t M_W0)."""
+    """Builds the split for one settings, biped and problem kind (:data:`KINDS`)."""
 
     def __init__(self, biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy"):
         if settings.dynamics not in ("chain", "mjx"):
             raise ValueError(f"unknown dynamics {settings.dynamics!r}")
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
         self.biped, self.settings, self.kind = biped, settings, kind
-        self.n = settings.size + (1 if kind == "limit" else 0)
+        self.n = settings.size + (0 if kind == "energy" else 1)
         self.segments, self.per = settings.segments, settings.steps // settings.segments
         self.first, self.window, self.data = _layout(settings)
         controls, nodes = _control_columns(settings), _node_columns(settings)
-        limit = [self.n - 1] if kind == "limit" else []
+        limit = [] if kind == "energy" else [self.n - 1]  # the last column beside x
         rows = []
         for k in range(self.segments):
             following = nodes[k + 1] if k + 1 < self.segments else np.full(2, self.n)
@@ -110,6 +122,7 @@ class _Split:
             at += shapes[name][0] * (per + 1) * shapes[name][1]
         g_size, split_g = at, segments * at
         boundary = {"touchdown_descending": (0, 1), "impact_impulse": (1, 3), "liftoff": (4, 1)}
+        boundary_size = sum(count for _, count in boundary.values())
         order_g = []
         for name, (kind, _) in constraints.CONSTRAINT_GROUPS.items():
             if kind != "inequality":
@@ -125,15 +138,20 @@ class _Split:
                     k, p = self._sample(t)
                     base = k * g_size + offsets[name] + block * (per + 1) * width + p * width
                     order_g += list(range(base, base + width))
+        if self.kind == "step":  # the bounds on l, after the gait's rows
+            order_g += [split_g + boundary_size, split_g + boundary_size + 1]
         return tuple(np.asarray(o, dtype=np.int32) for o in (order_r, order_h, order_g))
 
     # -- the rows of one segment
 
     def _model(self, params, local):
         """The gait model the rows are posed on: ``params`` itself, or for the limit problem its
-        :class:`~biped_jax.gait.settings.LimitParams`' model at the limit t M_W0."""
+        :class:`~biped_jax.gait.settings.LimitParams`' model at the limit t M_W0, for the step problem
+        its :class:`~biped_jax.gait.settings.StepParams`' model at the step length l L0."""
         if self.kind == "limit":
             return with_limit_fraction(params.model, local[-1])
+        if self.kind == "step":
+            return with_step_fraction(params.model, local[-1])
         return params
 
     def _samples(self, local, data, model):
@@ -157,7 +175,11 @@ class _Split:
         model = self._model(params, local)
         _, step_time, (q, qd, _, u, force, positions), end = self._samples(local, data, model)
         speed = qd[:, ACTUATED_INDEX]
-        r = self._residuals(u, speed, model, data["weights"] * step_time)
+        # sqrt(R w t_f) as sqrt(R w) sqrt(t_f): the weights of the samples a segment does not own are 0,
+        # where the square root's derivative is not finite, and t_f moves with a free step length
+        r = self._residuals(u, speed, model, data["weights"]) * jnp.sqrt(step_time)
+        if self.kind == "step":  # r . r = J / l, the energy per metre
+            r = r / jnp.sqrt(local[-1])
         groups = constraints.sample_groups(q, u, force, positions[:, 0], positions[:, 1:, 1], speed, model,
                                            self.settings)
         following = local[2 + 4 * self.window:4 + 4 * self.window]
@@ -190,6 +212,8 @@ class _Split:
         groups = constraints.boundary_groups(ends, model, self.settings)
         h = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_EQUALITIES])
         g = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_INEQUALITIES])
+        if self.kind == "step":
+            g = jnp.concatenate([g, step_bounds(local[-1], params)])
         return jnp.zeros(0, columns.dtype), h, g
 
 
@@ -212,8 +236,10 @@ def sample_shapes(settings: GaitSettings) -> dict:
 def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
     """The split of the gait problem (``kind`` "energy": x, params a GaitModel; "limit": (x, t) with the
     power limit t M_W0 and the objective t + energy_weight J, params
-    :class:`~biped_jax.gait.settings.LimitParams`) whose rows, in the problem's order, are those of
-    :class:`biped_jax.gait.solver.GaitSolver`'s problem (or its ``limit_problem``)."""
+    :class:`~biped_jax.gait.settings.LimitParams`; "step": (x, l) with the step length l L0, the
+    objective J / l and the bounds on l as the last two inequalities, params
+    :class:`~biped_jax.gait.settings.StepParams`) whose rows, in the problem's order, are those of
+    :class:`biped_jax.gait.solver.GaitSolver`'s problem (or its ``limit_problem``, ``step_problem``)."""
     split = _Split(biped, settings, kind)
     order_r, order_h, order_g = split.orders(sample_shapes(settings))
     return LocalProblem(segment=split.segment, boundary=split.boundary, segment_columns=split.segment_columns,

@@ -202,6 +202,30 @@ class LimitParams:
     energy_weight: jax.Array
 
 
+def with_step_fraction(model: GaitModel, fraction) -> GaitModel:
+    """``model`` with its step length L scaled by ``fraction`` (traceable): the problem with a free
+    step length in (x, l) poses every constraint (the touchdown's position, the step time L / v) at
+    L = l L0."""
+    return dataclasses.replace(model, step_length=model.step_length * fraction)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class StepParams:
+    """The free-step-length problem's data, one problem (a batch: leading dimension B).
+
+    Attributes:
+      model: the gait problem at its start's step length L0 (m); the problem in (x, l) poses every
+        constraint at L = l L0 and minimises the energy per metre J(l L0) / l (in J per L0 metres, so
+        that its value at l = 1 is the fixed step's J).
+      low, high: the bounds on l = L / L0 (0 < low <= 1 <= high).
+    """
+
+    model: GaitModel
+    low: jax.Array
+    high: jax.Array
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class GaitTrajectory:

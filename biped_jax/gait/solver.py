@@ -110,6 +110,11 @@ class GaitSolution:
     refinement: dict = dataclasses.field(default_factory=dict)
     starts: list = dataclasses.field(default_factory=list)
 
+    @property
+    def energy_per_metre(self) -> float:
+        """``cost`` per metre walked, J / L (N^2 m s for the paper's J)."""
+        return self.cost / self.step_length_m
+
 
 def _check_weights(energy_weights) -> tuple[float, ...]:
     """The continuation's weights as floats; ValueError naming them unless a non-empty list or tuple of
@@ -120,6 +125,21 @@ def _check_weights(energy_weights) -> tuple[float, ...]:
         raise ValueError("energy_weights must be a non-empty list or tuple of numbers >= 0 (the weights of J "
                          f"beside the limit, stage by stage), got {energy_weights!r:.80}")
     return tuple(float(w) for w in weights)
+
+
+def check_step_bounds(bounds, lengths: list[float], leg_length: float) -> tuple[float, float]:
+    """(low, high) in m from ``bounds``; ValueError naming them unless 0 < low <= every model's step
+    length <= high < the legs' reach (2 leg lengths)."""
+    if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(
+            isinstance(b, (int, float)) and not isinstance(b, bool) and np.isfinite(b) for b in bounds):
+        raise ValueError(f"bounds must be a pair (low, high) of step lengths in m, got {bounds!r:.80}")
+    low, high = (float(b) for b in bounds)
+    reach = 2 * leg_length
+    if not 0 < low <= min(lengths) or not max(lengths) <= high < reach:
+        raise ValueError(f"bounds ({low}, {high}) m must hold every model's step length "
+                         f"({min(lengths):.3g}-{max(lengths):.3g} m, the start) with 0 < low and high below "
+                         f"the legs' reach ({reach:.3g} m)")
+    return low, high
 
 
 def _check_options(options) -> None:
@@ -168,6 +188,15 @@ class GaitSolver:
             return t + params.energy_weight * energy, h, g
 
         self.limit_problem = nlp.ConstrainedProblem(limit_problem)
+
+        def step_problem(x_step, params: gait_problem.StepParams):
+            # (x, l): minimise J(l L0) / l, the energy per metre (in J per L0 metres), l within its bounds
+            x, fraction = x_step[:-1], x_step[-1]
+            r, h, g = residuals(x, gait_problem.with_step_fraction(params.model, fraction))
+            return r / jnp.sqrt(fraction), h, jnp.concatenate([g, segmented.step_bounds(fraction, params)])
+
+        self.step_problem = nlp.ConstrainedProblem.from_residuals(step_problem)
+        self._problems = {"energy": self.problem, "limit": self.limit_problem, "step": self.step_problem}
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
         self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
 
@@ -192,9 +221,10 @@ class GaitSolver:
         return other
 
     def _interior_point(self, kind: str, x0, batch, progress, multipliers=None, options=None) -> nlp.SolveResult:
-        """The batched interior point on the energy problem (``kind`` "energy") or the smallest power
-        limit's ("limit"), its colouring probed at the first problem's start and its programs compiled
-        on first use, both kept for later batches of the same shape."""
+        """The batched interior point on the energy problem (``kind`` "energy"), the smallest power
+        limit's ("limit") or the free step length's ("step"), its colouring probed at the first
+        problem's start and its programs compiled on first use, both kept for later batches of the same
+        shape."""
         problem, structure = self.prepared(kind, x0, batch)
         options = options or self.options
         key = (kind, interior_point.loop_options(options))
@@ -204,14 +234,14 @@ class GaitSolver:
                         compiled=self._interior[key], multipliers=multipliers, progress=progress)
 
     def prepared(self, kind: str, x0, batch) -> tuple[nlp.ConstrainedProblem, exact_derivatives.Structure]:
-        """(the problem as the interior point sees it, its colouring) for ``kind`` "energy" or "limit":
+        """(the problem as the interior point sees it, its colouring) for ``kind`` "energy", "limit" or "step":
         probed at the first problem of ``x0`` (B, n) and ``batch`` on first use, then kept (the split by
         shooting segment replaces the colouring where it needs fewer directions)."""
         if kind not in self._structures:
-            problem = self.problem if kind == "energy" else self.limit_problem
+            problem = self._problems[kind]
             first = jax.tree.map(lambda a: a[0], batch)
             structure = exact_derivatives.probe_structure(
-                problem, np.asarray(x0[0]), first, linear_columns=() if kind == "energy" else (x0.shape[1] - 1,))
+                problem, np.asarray(x0[0]), first, linear_columns=(x0.shape[1] - 1,) if kind == "limit" else ())
             if self.settings.segments > 1:  # the split by segment, where it needs fewer directions
                 local = segmented.local_problem(self.biped, self.settings, kind)
                 if local.directions < structure.colours:
@@ -316,6 +346,31 @@ class GaitSolver:
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
+
+    def solve_step_length(self, names: list[str], models: list[gait_problem.GaitModel], bounds,
+                          x0=None, progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
+        """The step length as a decision variable: for each model the gait and step length L within
+        ``bounds`` (low, high) in m minimising the energy per metre J(L) / L at the model's speed, all
+        models in one batch of the interior point on (x, l = L / L0), L0 each model's own step length
+        (the start's; low <= L0 <= high). Every constraint moves with L: the touchdown's position, the
+        step time L / v, so the clearance, impact and periodicity rows. ``x0`` (B, n): starts at L0
+        (e.g. the x of :meth:`solve`'s solutions); None starts from the heuristic gait.
+
+        Returns per model a :class:`GaitSolution` at the step length found (``step_length_m``,
+        ``step_time_s``), ``cost`` that step's J (its :attr:`GaitSolution.energy_per_metre` the
+        objective), judged and refinement-checked as :meth:`solve`'s; the multipliers are those of
+        the problem in (x, l), the bounds' two last."""
+        x0 = self.check_batch(names, models, x0)
+        low, high = check_step_bounds(bounds, [float(m.step_length) for m in models], self.leg_length)
+        batch = stack_tree(models)
+        x0 = np.asarray(self._initial_guess(batch)) if x0 is None else x0
+        start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
+        lengths = np.asarray(batch.step_length)
+        params = gait_problem.StepParams(batch, jnp.asarray(low / lengths), jnp.asarray(high / lengths))
+        result = self._interior_point("step", jnp.asarray(start), params, progress)
+        at_step = dataclasses.replace(batch, step_length=jnp.asarray(lengths * result.x[:, -1]))
+        # J is the re-simulated step's at the length found (the objective is J / l)
+        return self._report(names, at_step, dataclasses.replace(result, x=result.x[:, :-1]), cost_of_rollout=True)
 
     def _limit_continuation(self, start, batch, progress, energy_weights) -> nlp.SolveResult:
         """The interior point on min t + (w_k / J0) J over (x, t) for each w_k of ``energy_weights`` in

@@ -69,12 +69,16 @@ class Problem:
 
 
 def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings = paper.STUDY_SETTINGS,
-              smallest_power_limit: bool = False, progress: Callable[..., None] | None = None) -> dict:
+              smallest_power_limit: bool = False, progress: Callable[..., None] | None = None,
+              free_step_length: tuple[float, float] | None = None) -> dict:
     """Solves ``problem`` in ``settings``' space from every start family of the study and writes
     results.json (the problem, the settings, the solution with its refinement check and every start's
     outcome, and with ``smallest_power_limit`` the smallest limit at which it still walks),
     tables.md (the layout of the paper's Tables 4 and 5), fig2_trajectories.png, fig3_torque_rpm.png
-    and trajectories.npz. Returns the results record."""
+    and trajectories.npz. With ``free_step_length`` (low, high) in m, the step length is then freed
+    within those bounds from the solved gait (:meth:`~biped_jax.gait.solver.GaitSolver.solve_step_length`:
+    the gait and length of least energy per metre at the problem's speed), recorded under
+    "free_step_length" and drawn beside the fixed step in the figures. Returns the results record."""
     say = progress or (lambda message, task=None: None)
     model = problem.model()
     if problem.has_drive:  # the gait within the gears' torque and input speed too
@@ -90,6 +94,22 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
     results = {"problem": dataclasses.asdict(problem), "settings": dataclasses.asdict(settings),
                "solution": gait_report.results_record(solution)}
     tables = [f"# {problem.name}", "", gait_report.markdown_table(solution)]
+    drawn = [solution]
+    if free_step_length is not None:
+        say(f"the step length free in [{free_step_length[0]:g}, {free_step_length[1]:g}] m")
+        free, = solvers.fine.solve_step_length(
+            ["free_step"], [model], tuple(free_step_length), x0=solution.x[None],
+            progress=lambda i, row: say(f"free step length: interior-point iteration {i}, "
+                                        f"J/L {float(row['cost'].min()) / problem.step_length:.4f}"))
+        results["free_step_length"] = {
+            "bounds_m": list(free_step_length), "step_length_m": free.step_length_m,
+            "cost_per_metre": free.energy_per_metre, "fixed_cost_per_metre": solution.energy_per_metre,
+            "solution": gait_report.results_record(free)}
+        tables += ["", f"## The step length free in [{free_step_length[0]:g}, {free_step_length[1]:g}] m", "",
+                   f"L = {free.step_length_m:.4f} m ({free.status}): J/L = {free.energy_per_metre:.4g} against "
+                   f"{solution.energy_per_metre:.4g} at L = {problem.step_length:g} m", "",
+                   gait_report.markdown_table(free)]
+        drawn.append(free)
     if smallest_power_limit:
         say("the smallest power limit at which it walks")
         minimum, = paper.minimal_power_limits(solvers.power, [solution], [model], coarse=solvers.coarse_power,
@@ -108,10 +128,10 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
                    for v in results["drives"]["joints"]]
     outputs.write_json(out / "results.json", results)
     outputs.write_text(out / "tables.md", "\n".join(tables) + "\n")
-    gait_report.plot_figure_2([solution], out / "fig2_trajectories.png")
-    gait_report.plot_figure_3([solution], out / "fig3_torque_rpm.png")
+    gait_report.plot_figure_2(drawn, out / "fig2_trajectories.png")
+    gait_report.plot_figure_3(drawn, out / "fig3_torque_rpm.png")
     from biped_jax.drives import selection as drive_selection
-    drive_selection.save_workspaces(out / "trajectories.npz", [solution])
+    drive_selection.save_workspaces(out / "trajectories.npz", drawn)
     return results
 
 
