@@ -132,6 +132,9 @@ def _parser() -> argparse.ArgumentParser:
                      metavar=("LOW", "HIGH"),
                      help="then free the step length within [LOW, HIGH] m (holding --step-length, the start): "
                           "the gait and step length of least energy per metre at --speed")
+    own.add_argument("--fastest", action="store_true",
+                     help="also find the fastest gait within the same limits (power, and with a drive its "
+                          "voltage and gears), the step length free within --free-step-length (default 0.1-0.35 m)")
     own.add_argument("--motor", default=None,
                      help="catalogue motor at every joint (e.g. RE25-42V; default: ideal drives, the paper's "
                           "problem; with --gearhead alone RE25-42V): the robot carries the drives, J is the "

@@ -299,14 +299,16 @@ def run_codesign(args) -> int:
     return 0
 
 
-def solve(out: Path, problem, settings, smallest_power_limit: bool = False, free_step_length=None) -> dict:
+def solve(out: Path, problem, settings, smallest_power_limit: bool = False, free_step_length=None,
+          fastest: bool = False) -> dict:
     """One problem of the user's own with a live progress display; see :mod:`biped_jax.studies.solve`."""
     from biped_jax.studies import solve as solve_study
 
     started = time.perf_counter()
-    with live_progress(("starts:", "refined space:", "smallest power limit", "free step length")) as progress:
+    stages = ("starts:", "refined space:", "smallest power limit", "free step length", "the fastest gait")
+    with live_progress(stages) as progress:
         results = solve_study.run_solve(out, problem, settings, smallest_power_limit, progress,
-                                        free_step_length=free_step_length)
+                                        free_step_length=free_step_length, fastest=fastest)
     record = results["solution"]
     check = record["refinement"]
     console.print(f"{problem.name}: {record['status']}, J = {record['cost']:.4g} ({check['cost']:.4g} on "
@@ -321,6 +323,10 @@ def solve(out: Path, problem, settings, smallest_power_limit: bool = False, free
         console.print(f"step length free: L = {free['step_length_m']:.4f} m ({free['solution']['status']}), J/L = "
                       f"{free['cost_per_metre']:.4g} against {free['fixed_cost_per_metre']:.4g} at "
                       f"{problem.step_length:g} m")
+    if "fastest" in results:
+        quickest = results["fastest"]
+        console.print(f"fastest gait: v = {quickest['speed_mps']:.4f} m/s at L = {quickest['step_length_m']:.4f} m "
+                      f"({quickest['status']})")
     console.print(f"wrote {out}/results.json, tables.md, fig2_trajectories.png, fig3_torque_rpm.png, "
                   f"trajectories.npz in {time.perf_counter() - started:.0f} s")
     return results
@@ -335,10 +341,11 @@ def check_solve(args):
     configure_jax()
     try:
         problem.model()
-        if args.free_step_length is not None:
+        if args.free_step_length is not None or args.fastest:
             from biped_jax.gait.solver import check_step_bounds
             from biped_jax.robots.specs import PLANAR_SPECS
-            check_step_bounds(tuple(args.free_step_length), [problem.step_length],
+            from biped_jax.studies.solve import FASTEST_STEP_BOUNDS
+            check_step_bounds(tuple(args.free_step_length or FASTEST_STEP_BOUNDS), [problem.step_length],
                               PLANAR_SPECS[problem.mass_class].leg_length)
     except ValueError as error:
         args.parser.error(str(error))
@@ -347,7 +354,7 @@ def check_solve(args):
 
 def run_solve(args) -> int:
     problem, settings = getattr(args, "checked", None) or check_solve(args)  # checked once by cli.main
-    solve(args.out, problem, settings, args.smallest_power_limit, args.free_step_length)
+    solve(args.out, problem, settings, args.smallest_power_limit, args.free_step_length, args.fastest)
     return 0
 
 

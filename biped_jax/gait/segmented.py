@@ -21,7 +21,8 @@ from biped_jax.dynamics import mjx_biped
 from biped_jax.dynamics.interface import stance_dynamics, touchdown
 from biped_jax.gait import constraints
 from biped_jax.gait.rollout import sample_outputs, shoot, time_scale
-from biped_jax.gait.settings import GaitSettings, with_limit_fraction, with_step_fraction
+from biped_jax.gait.kinds import KINDS
+from biped_jax.gait.settings import GaitSettings
 from biped_jax.gait.splines import basis, grid, simpson_weights
 from biped_jax.optim.local_derivatives import LocalProblem
 from biped_jax.robots.planar_biped import ACTUATED_INDEX, SWAP, pinned_coordinates
@@ -66,31 +67,20 @@ def _layout(settings: GaitSettings):
     return first, window, data
 
 
-#: The problem kinds the split poses: the energy problem in x, and two with a last column beside x:
-#: "limit" t, the power limit t M_W0 (:class:`~biped_jax.gait.settings.LimitParams`), and "step" l, the
-#: step length l L0 (:class:`~biped_jax.gait.settings.StepParams`).
-KINDS = ("energy", "limit", "step")
-
-
-def step_bounds(fraction, params) -> jax.Array:
-    """The free step length's bound rows (g <= 0), (2,): low - l and l - high."""
-    return jnp.stack([params.low - fraction, fraction - params.high])
-
-
 class _Split:
-    """Builds the split for one settings, biped and problem kind (:data:`KINDS`)."""
+    """Builds the split for one settings, biped and problem kind (:data:`biped_jax.gait.kinds.KINDS`)."""
 
     def __init__(self, biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy"):
         if settings.dynamics not in ("chain", "mjx"):
             raise ValueError(f"unknown dynamics {settings.dynamics!r}")
         if kind not in KINDS:
-            raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
-        self.biped, self.settings, self.kind = biped, settings, kind
-        self.n = settings.size + (0 if kind == "energy" else 1)
+            raise ValueError(f"kind must be one of {tuple(KINDS)}, got {kind!r}")
+        self.biped, self.settings, self.kind, self.spec = biped, settings, kind, KINDS[kind]
+        self.n = settings.size + self.spec.columns
         self.segments, self.per = settings.segments, settings.steps // settings.segments
         self.first, self.window, self.data = _layout(settings)
         controls, nodes = _control_columns(settings), _node_columns(settings)
-        limit = [] if kind == "energy" else [self.n - 1]  # the last column beside x
+        limit = list(range(settings.size, self.n))  # the columns beside x
         rows = []
         for k in range(self.segments):
             following = nodes[k + 1] if k + 1 < self.segments else np.full(2, self.n)
@@ -138,21 +128,19 @@ class _Split:
                     k, p = self._sample(t)
                     base = k * g_size + offsets[name] + block * (per + 1) * width + p * width
                     order_g += list(range(base, base + width))
-        if self.kind == "step":  # the bounds on l, after the gait's rows
-            order_g += [split_g + boundary_size, split_g + boundary_size + 1]
+        # the kind's bounds, after the gait's rows
+        order_g += [split_g + boundary_size + k for k in range(self.spec.bound_rows)]
         return tuple(np.asarray(o, dtype=np.int32) for o in (order_r, order_h, order_g))
 
     # -- the rows of one segment
 
     def _model(self, params, local):
-        """The gait model the rows are posed on: ``params`` itself, or for the limit problem its
-        :class:`~biped_jax.gait.settings.LimitParams`' model at the limit t M_W0, for the step problem
-        its :class:`~biped_jax.gait.settings.StepParams`' model at the step length l L0."""
-        if self.kind == "limit":
-            return with_limit_fraction(params.model, local[-1])
-        if self.kind == "step":
-            return with_step_fraction(params.model, local[-1])
-        return params
+        """The gait model the rows are posed on: ``params`` itself, or the kind's model at its columns
+        beside x (the last of ``local``)."""
+        return self.spec.model(params, self._extra(local))
+
+    def _extra(self, local):
+        return local[local.shape[0] - self.spec.columns:]
 
     def _samples(self, local, data, model):
         """The segment's samples: (q, qd, qdd, u, force, positions) at its per + 1 grid points and the
@@ -178,8 +166,7 @@ class _Split:
         # sqrt(R w t_f) as sqrt(R w) sqrt(t_f): the weights of the samples a segment does not own are 0,
         # where the square root's derivative is not finite, and t_f moves with a free step length
         r = self._residuals(u, speed, model, data["weights"]) * jnp.sqrt(step_time)
-        if self.kind == "step":  # r . r = J / l, the energy per metre
-            r = r / jnp.sqrt(local[-1])
+        r = self.spec.scaled_residuals(r, self._extra(local))  # r . r = J / l for an energy per metre
         groups = constraints.sample_groups(q, u, force, positions[:, 0], positions[:, 1:, 1], speed, model,
                                            self.settings)
         following = local[2 + 4 * self.window:4 + 4 * self.window]
@@ -212,8 +199,7 @@ class _Split:
         groups = constraints.boundary_groups(ends, model, self.settings)
         h = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_EQUALITIES])
         g = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_INEQUALITIES])
-        if self.kind == "step":
-            g = jnp.concatenate([g, step_bounds(local[-1], params)])
+        g = self.spec.with_bounds(g, self._extra(local), params)
         return jnp.zeros(0, columns.dtype), h, g
 
 
@@ -234,16 +220,14 @@ def sample_shapes(settings: GaitSettings) -> dict:
 
 
 def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: str = "energy") -> LocalProblem:
-    """The split of the gait problem (``kind`` "energy": x, params a GaitModel; "limit": (x, t) with the
-    power limit t M_W0 and the objective t + energy_weight J, params
-    :class:`~biped_jax.gait.settings.LimitParams`; "step": (x, l) with the step length l L0, the
-    objective J / l and the bounds on l as the last two inequalities, params
-    :class:`~biped_jax.gait.settings.StepParams`) whose rows, in the problem's order, are those of
-    :class:`biped_jax.gait.solver.GaitSolver`'s problem (or its ``limit_problem``, ``step_problem``)."""
+    """The split of the gait problem of ``kind`` (:data:`biped_jax.gait.kinds.KINDS`: "energy", params a
+    GaitModel; "limit", "step", "speed", with their columns beside x and their params) whose rows, in
+    the problem's order, are those of :func:`biped_jax.gait.kinds.kind_problem` (the
+    :class:`~biped_jax.gait.solver.GaitSolver`'s ``problems[kind]``)."""
     split = _Split(biped, settings, kind)
     order_r, order_h, order_g = split.orders(sample_shapes(settings))
     return LocalProblem(segment=split.segment, boundary=split.boundary, segment_columns=split.segment_columns,
                         boundary_columns=split.boundary_columns, segment_data=split.data,
                         order_r=order_r, order_h=order_h, order_g=order_g,
-                        linear_objective=split.n - 1 if kind == "limit" else None,
-                        energy_weight=(lambda params: params.energy_weight) if kind == "limit" else None)
+                        linear_objective=split.n - 1 if split.spec.linear else None,
+                        energy_weight=(lambda params: params.energy_weight) if split.spec.linear else None)

@@ -228,6 +228,25 @@ class StepParams:
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
+class SpeedParams:
+    """The fastest gait's problem data, one problem (a batch: leading dimension B).
+
+    Attributes:
+      model: the gait problem at its start's step length L0 (m) and speed v0 (m/s); the problem in
+        (x, l, c) poses every constraint at L = l L0 and v = v0 / c and minimises the pace c (maximises
+        v), with ``energy_weight`` times the energy per metre J / l beside it.
+      low, high: the bounds on l = L / L0.
+      energy_weight: as :class:`LimitParams`' (1 / (N^2 m^2 s)); 0 is max v itself.
+    """
+
+    model: GaitModel
+    low: jax.Array
+    high: jax.Array
+    energy_weight: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
 class GaitTrajectory:
     """The simulated step, sampled at the T + 1 grid points (t = 0 and t = t_f included).
 

@@ -17,7 +17,7 @@ import numpy as np
 from biped_jax import checks
 from biped_jax.dynamics import mjx_biped
 from biped_jax.gait import problem as gait_problem
-from biped_jax.gait import segmented, verdict
+from biped_jax.gait import kinds, segmented, verdict
 from biped_jax.optim import nlp
 from biped_jax.optim import exact_derivatives
 from biped_jax.optim import interior_point
@@ -179,24 +179,11 @@ class GaitSolver:
                 gait_problem.constraint_groups(trajectory, model, settings_))
             return gait_problem.cost_residuals(trajectory, model.drives), equalities, inequalities
 
-        self.problem = nlp.ConstrainedProblem.from_residuals(residuals)
-
-        def limit_problem(x_limit, params: gait_problem.LimitParams):
-            # (x, t): minimise t + w J with every constraint at M_W = t M_W0
-            x, t = x_limit[:-1], x_limit[-1]
-            energy, h, g = self.problem.evaluate(x, gait_problem.with_limit_fraction(params.model, t))
-            return t + params.energy_weight * energy, h, g
-
-        self.limit_problem = nlp.ConstrainedProblem(limit_problem)
-
-        def step_problem(x_step, params: gait_problem.StepParams):
-            # (x, l): minimise J(l L0) / l, the energy per metre (in J per L0 metres), l within its bounds
-            x, fraction = x_step[:-1], x_step[-1]
-            r, h, g = residuals(x, gait_problem.with_step_fraction(params.model, fraction))
-            return r / jnp.sqrt(fraction), h, jnp.concatenate([g, segmented.step_bounds(fraction, params)])
-
-        self.step_problem = nlp.ConstrainedProblem.from_residuals(step_problem)
-        self._problems = {"energy": self.problem, "limit": self.limit_problem, "step": self.step_problem}
+        # every kind of the problem (biped_jax.gait.kinds): the energy one in x, the others with their
+        # columns beside x (the power limit, the step length, the speed)
+        self.problems = {kind: kinds.kind_problem(kind, residuals, settings.size) for kind in kinds.KINDS}
+        self.problem, self.limit_problem = self.problems["energy"], self.problems["limit"]
+        self.step_problem, self.speed_problem = self.problems["step"], self.problems["speed"]
         self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
         self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
 
@@ -238,10 +225,11 @@ class GaitSolver:
         probed at the first problem of ``x0`` (B, n) and ``batch`` on first use, then kept (the split by
         shooting segment replaces the colouring where it needs fewer directions)."""
         if kind not in self._structures:
-            problem = self._problems[kind]
+            problem = self.problems[kind]
             first = jax.tree.map(lambda a: a[0], batch)
-            structure = exact_derivatives.probe_structure(
-                problem, np.asarray(x0[0]), first, linear_columns=(x0.shape[1] - 1,) if kind == "limit" else ())
+            structure = exact_derivatives.probe_structure(problem, np.asarray(x0[0]), first,
+                                                          linear_columns=(x0.shape[1] - 1,) if kinds.KINDS[kind].linear
+                                                          else ())
             if self.settings.segments > 1:  # the split by segment, where it needs fewer directions
                 local = segmented.local_problem(self.biped, self.settings, kind)
                 if local.directions < structure.colours:
@@ -328,7 +316,8 @@ class GaitSolver:
         weights = _check_weights(energy_weights)
         batch = stack_tree(models)
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
-        result = self._limit_continuation(start, batch, progress, weights)
+        result = self._continuation("limit", start, lambda w: gait_problem.LimitParams(batch, w),
+                                    self.check(x0, batch).energy, progress, weights)
         x = result.x[:, :-1]
         solve_grid = result.x[:, -1] * np.asarray(batch.power_limit)
         limits, fine = solve_grid, None
@@ -372,21 +361,55 @@ class GaitSolver:
         # J is the re-simulated step's at the length found (the objective is J / l)
         return self._report(names, at_step, dataclasses.replace(result, x=result.x[:, :-1]), cost_of_rollout=True)
 
-    def _limit_continuation(self, start, batch, progress, energy_weights) -> nlp.SolveResult:
-        """The interior point on min t + (w_k / J0) J over (x, t) for each w_k of ``energy_weights`` in
-        turn (J0: each start's J), every stage from the last one's point and multipliers; the result is
-        the last stage's, with the iterations, derivative passes and time of all of them."""
-        j0 = self.check(start[:, :-1], batch).energy
+    def fastest_gait(self, names: list[str], models: list[gait_problem.GaitModel], x0, bounds,
+                     progress: Callable[[int, dict], None] | None = None,
+                     energy_weights: tuple = LIMIT_ENERGY_WEIGHTS) -> list[GaitSolution]:
+        """The fastest gait of each model: the largest speed v at which it walks within every
+        constraint at its own power limit (and with real drives their supply voltage, and with
+        ``settings.drive_limits`` the gears' limits), the step length L free within ``bounds`` (low,
+        high) in m. The interior point (all models in one batch) on (x, l, c) with L = l L0 and
+        v = v0 / c (L0, v0: each model's own; c, the pace relative to v0, minimised: max v), from ``x0``
+        (B, n), gaits feasible at (L0, v0) such as :meth:`solve`'s, as a continuation over
+        ``energy_weights`` (:data:`LIMIT_ENERGY_WEIGHTS`): min c + (w / E0) J / l for each w in turn,
+        the last normally 0, whose converged result is a KKT point of max v itself (its multipliers
+        those of that problem). v is bounded by :data:`biped_jax.gait.kinds.SPEED_CAP`.
+
+        Returns per model a :class:`GaitSolution` at the speed and step length found (``speed_mps``,
+        ``step_length_m``, ``step_time_s``), ``cost`` that gait's J (not minimised), judged and
+        refinement-checked as :meth:`solve`'s: a gait that exceeds its limits between the solve grid's
+        points says so there (``grid dependent``)."""
+        if x0 is None:
+            raise ValueError("x0 is None: fastest_gait starts from gaits feasible at the models' own speed and "
+                             "step length, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
+        x0 = self.check_batch(names, models, x0)
+        weights = _check_weights(energy_weights)
+        low, high = check_step_bounds(bounds, [float(m.step_length) for m in models], self.leg_length)
+        batch = stack_tree(models)
+        lengths, speeds = np.asarray(batch.step_length), np.asarray(batch.speed)
+        start = np.concatenate([x0, np.ones((len(models), 2))], axis=1)
+        result = self._continuation(
+            "speed", start, lambda w: gait_problem.SpeedParams(batch, jnp.asarray(low / lengths),
+                                                              jnp.asarray(high / lengths), w),
+            self.check(x0, batch).energy, progress, weights)
+        found = dataclasses.replace(batch, step_length=jnp.asarray(lengths * result.x[:, -2]),
+                                    speed=jnp.asarray(speeds / result.x[:, -1]))
+        return self._report(names, found, dataclasses.replace(result, x=result.x[:, :-2]), cost_of_rollout=True)
+
+    def _continuation(self, kind: str, start, params_at, j0, progress, energy_weights) -> nlp.SolveResult:
+        """The interior point on a linear kind's min c + (w_k / J0) E over (x, extra) (c its last
+        column, E its energy) for each w_k of ``energy_weights`` in turn (J0 (B,): each start's energy),
+        every stage from the last one's point and multipliers; ``params_at(weights (B,))`` the kind's
+        params. The result is the last stage's, with the iterations, derivative passes and time of all."""
         point, multipliers, stages = jnp.asarray(start), None, []
         # multipliers mu / s where none are known: z = 1 on some 1,500 power rows would weigh the
         # Hessian with a thousand times the curvature the optimum's few active rows carry
         first = dataclasses.replace(self.options, mu_based_multipliers=True)
         for k, weight in enumerate(energy_weights):
-            params = gait_problem.LimitParams(batch, jnp.asarray(weight / j0, dtype=jnp.result_type(float)))
+            params = params_at(jnp.asarray(weight / j0, dtype=jnp.result_type(float)))
             options = first if k == 0 else dataclasses.replace(first, mu_initial=LIMIT_WARM_MU)
             if progress:
                 stage = lambda i, row, w=weight: progress(i, {**row, "energy_weight": w})  # noqa: E731
-            result = self._interior_point("limit", point, params, progress and stage, multipliers, options)
+            result = self._interior_point(kind, point, params, progress and stage, multipliers, options)
             stages.append(result)
             point, multipliers = jnp.asarray(result.x), (result.multipliers_eq, result.multipliers_in)
         last = stages[-1]

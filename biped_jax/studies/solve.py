@@ -17,6 +17,11 @@ from biped_jax.report import outputs
 from biped_jax.studies import paper
 
 
+#: The step lengths the fastest gait may take when none are given (m): the study's 0.2 m and the
+#: range its optimal steps span at 0.4-0.6 m/s (``--free-step-length`` on M1-M4).
+FASTEST_STEP_BOUNDS = (0.1, 0.35)
+
+
 @dataclasses.dataclass(frozen=True)
 class Problem:
     """The problem ``biped-jax solve`` poses.
@@ -70,7 +75,7 @@ class Problem:
 
 def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings = paper.STUDY_SETTINGS,
               smallest_power_limit: bool = False, progress: Callable[..., None] | None = None,
-              free_step_length: tuple[float, float] | None = None) -> dict:
+              free_step_length: tuple[float, float] | None = None, fastest: bool = False) -> dict:
     """Solves ``problem`` in ``settings``' space from every start family of the study and writes
     results.json (the problem, the settings, the solution with its refinement check and every start's
     outcome, and with ``smallest_power_limit`` the smallest limit at which it still walks),
@@ -78,7 +83,9 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
     and trajectories.npz. With ``free_step_length`` (low, high) in m, the step length is then freed
     within those bounds from the solved gait (:meth:`~biped_jax.gait.solver.GaitSolver.solve_step_length`:
     the gait and length of least energy per metre at the problem's speed), recorded under
-    "free_step_length" and drawn beside the fixed step in the figures. Returns the results record."""
+    "free_step_length" and drawn beside the fixed step in the figures. With ``fastest``, the fastest gait
+    within the same limits (:meth:`~biped_jax.gait.solver.GaitSolver.fastest_gait`; its step length within
+    ``free_step_length`` or :data:`FASTEST_STEP_BOUNDS`), under "fastest". Returns the results record."""
     say = progress or (lambda message, task=None: None)
     model = problem.model()
     if problem.has_drive:  # the gait within the gears' torque and input speed too
@@ -120,6 +127,19 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
         tables += ["", "## Smallest power limit with a feasible gait", "",
                    f"{'-' if minimum['min_power_limit_W'] is None else format(minimum['min_power_limit_W'], '.3f')} W "
                    f"(kept on {solvers.fine.refined_settings.steps} steps; status {minimum['min_power_status']})"]
+    if fastest:
+        bounds = tuple(free_step_length) if free_step_length is not None else FASTEST_STEP_BOUNDS
+        say(f"the fastest gait (step length in [{bounds[0]:g}, {bounds[1]:g}] m)")
+        quickest, = solvers.power.fastest_gait(["fastest"], [model], solution.x[None], bounds,
+                                               progress=paper.power_report(say))
+        results["fastest"] = {"bounds_m": list(bounds), "speed_mps": quickest.speed_mps,
+                              "step_length_m": quickest.step_length_m, "status": quickest.status,
+                              "solution": gait_report.results_record(quickest)}
+        tables += ["", "## The fastest gait", "",
+                   f"v = {quickest.speed_mps:.4f} m/s at L = {quickest.step_length_m:.4f} m ({quickest.status}; "
+                   f"J = {quickest.cost:.4g}, kept on {solvers.fine.refined_settings.steps} steps: "
+                   f"{'yes' if quickest.refinement.get('passed') else 'no'})", "", gait_report.markdown_table(quickest)]
+        drawn.append(quickest)
     if problem.has_drive:
         results["drives"] = _drive_check(problem, model, solution)
         tables += ["", "## The drive's catalogue check per joint", "", "| joint | motor | gearhead | verdict | "
