@@ -146,6 +146,22 @@ def _parser() -> argparse.ArgumentParser:
                      help="the drives' supply voltage, V (with --motor or --gearhead; default the catalogue's 38)")
     _space_arguments(own, substeps=STUDY_SUBSTEPS, segments=True, spans=STUDY_SPANS)
     own.add_argument("--dynamics", choices=DYNAMICS, default="chain", help=DYNAMICS_HELP + " (default chain)")
+    library = subcommands.add_parser("library", help="optimal gaits over a grid of speeds and step lengths, the "
+                                     "optimal step length at every speed and the drives' demand (figures, JSON, npz)")
+    _out_argument(library)
+    library.add_argument("--mass-class", choices=("12kg", "18kg"), default="12kg", help="the biped (default 12kg)")
+    library.add_argument("--speeds", type=_number("speeds", 0.0, 5.0), nargs="+", default=None,
+                         help="walking speeds, m/s, increasing (default 0.2 0.3 0.4 0.5 0.6 0.7)")
+    library.add_argument("--step-lengths", type=_number("step-lengths", 0.0, 1.0), nargs="+", default=None,
+                         help="step lengths, m, increasing (default 0.1 0.15 0.2 0.25 0.3)")
+    library.add_argument("--power-limit", type=_number("power-limit", 0.0, 1e6), default=20.0,
+                         help="bound on every joint's |qdot u|, W (default 20)")
+    library.add_argument("--rounds", type=_integer("rounds", 0, 20), default=3,
+                         help="rounds of re-solving points that did not converge from their neighbours (default 3)")
+    library.add_argument("--quick", action="store_true",
+                         help="a first look: 3 speeds x 3 step lengths (overrides --speeds, --step-lengths and "
+                              "the space); every file it writes says so")
+    _space_arguments(library, substeps=4, spans=16)
     bench = subcommands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
     _out_argument(bench)
     _space_arguments(bench)
@@ -200,7 +216,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 #: What each command runs (:mod:`biped_jax.commands`).
-RUNS = {"reproduce": commands.run_reproduce, "solve": commands.run_solve, "kelly": commands.run_kelly,
+RUNS = {"reproduce": commands.run_reproduce, "solve": commands.run_solve, "library": commands.run_library,
+        "kelly": commands.run_kelly,
         "donald": commands.run_donald, "humanoid": commands.run_humanoid, "codesign": commands.run_codesign,
         "drives": commands.run_drives, "step": commands.run_step, "models": commands.run_models,
         "view": commands.run_view}
@@ -215,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
         args.parser.error("--resume continues the --faster optimisation; give both or neither")
     if args.command == "solve":
         args.checked = commands.check_solve(args)  # the problem's own checks, before the output folder is made
+    if args.command == "library":
+        args.checked = commands.check_library(args)
     if not hasattr(args, "out"):
         return args.run(args)
     with interrupts.handled():

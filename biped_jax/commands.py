@@ -270,6 +270,44 @@ def run_step(args) -> int:
     return 0
 
 
+def check_library(args):
+    """The grid and space of ``biped-jax library``, checked before the output folder is touched."""
+    from biped_jax.studies import library as library_study
+    configure_jax()
+    try:
+        if args.quick:
+            return (library_study.LibraryGrid(args.mass_class, library_study.QUICK_SPEEDS,
+                                              library_study.QUICK_STEP_LENGTHS, args.power_limit),
+                    library_study.QUICK_SETTINGS)
+        defaults = library_study.LibraryGrid()
+        grid = library_study.LibraryGrid(args.mass_class, tuple(args.speeds or defaults.speeds),
+                                         tuple(args.step_lengths or defaults.step_lengths), args.power_limit)
+    except ValueError as error:
+        args.parser.error(str(error))
+    return grid, _settings(args)
+
+
+def run_library(args) -> int:
+    """A gait library with a live progress line; see :mod:`biped_jax.studies.library`."""
+    from biped_jax.studies import library as library_study
+    grid, settings = getattr(args, "checked", None) or check_library(args)
+    started = time.perf_counter()
+    stamp = outputs.stamped(library_study.QUICK_STAMP) if args.quick else contextlib.nullcontext()
+    with live_progress(("grid:", "round", "step length free")) as progress, stamp:
+        record = library_study.run_library(args.out, grid, settings, args.rounds, progress)
+    points = record["points"]
+    converged = sum(p["status"] == "converged" for p in points)
+    console.print(f"{grid.mass_class}, {grid.power_limit:g} W: {converged} of {len(points)} grid points converged")
+    for best in record["optimal_step"]:
+        if best is not None:
+            console.print(f"  {best['speed_mps']:g} m/s: optimal step {best['step_length_m']:.3f} m "
+                          f"({best['status']}), J/L {best['cost_per_metre']:.4g}, "
+                          f"peak torque {max(best['torque_peak_Nm']):.2f} N m")
+    console.print(f"wrote {args.out}/library.json, library.npz, library_map.png, library_drives.png in "
+                  f"{time.perf_counter() - started:.0f} s")
+    return 0
+
+
 def run_kelly(args) -> int:
     configure_jax()
     settings = _settings(args)

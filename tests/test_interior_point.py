@@ -138,6 +138,21 @@ def test_batches_are_padded_to_few_sizes():
     assert all(b <= size <= 1.5 * b for b, size in zip(range(1, 50), sizes))
 
 
+def test_the_inertia_correction_ends_on_a_matrix_no_shift_makes_definite():
+    """A Hessian with a NaN (a rollout that blew up) after a failed step (floor = the last shift): the
+    shift grows until its cap and the factor comes back not finite (the iteration then fails and the
+    problem ends, rather than the loop shifting by the same amount for ever)."""
+    matrix = jnp.array([[1.0, jnp.nan], [jnp.nan, 1.0]])
+    factor, delta = jax.jit(interior_point._inertia_corrected)(matrix, jnp.asarray(1.0), jnp.asarray(1.0))
+    assert not np.all(np.isfinite(factor)) and float(delta) > 1e30
+    # indefinite (eigenvalues 3, -1) with the last shift's third (1/3) below the floor 0.5: the floor
+    # fails, and the shift grows 8x to the first that makes the matrix definite (the loop used to retry
+    # the floor for ever here)
+    indefinite = jnp.array([[1.0, 2.0], [2.0, 1.0]])
+    factor, delta = jax.jit(interior_point._inertia_corrected)(indefinite, jnp.asarray(1.0), jnp.asarray(0.5))
+    assert np.all(np.isfinite(factor)) and float(delta) == pytest.approx(4.0)
+
+
 def test_options_name_a_bad_value():
     with pytest.raises(ValueError, match="tolerance must be a positive number, got -1"):
         interior_point.InteriorPointOptions(tolerance=-1.0)
@@ -343,8 +358,9 @@ def test_the_fastest_gait_is_a_kkt_point_of_max_speed(interior_gaits):
     """From M1-M4's optima at their own speeds the continuation (J's weight beside the pace down to 0)
     ends at KKT points of max v over (gait, step length, speed) at the models' own power limits, checked
     with central differences of that problem: stationarity with the solver's multipliers, z >= 0,
-    complementarity; faster than the start; and the energy problem posed at the speed and step length
-    found is feasible from that gait (converged)."""
+    complementarity; faster than the start; its power within the limit on the 4x finer grid too (the
+    limit lowered on the solve grid by the excess between its points); and the energy problem posed at
+    the speed and step length found is feasible from that gait (converged)."""
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import stack_tree
     from biped_jax.studies import paper as study
@@ -357,7 +373,10 @@ def test_the_fastest_gait_is_a_kkt_point_of_max_speed(interior_gaits):
     evaluate = jax.jit(jax.vmap(fast.speed_problem.evaluate, in_axes=(0, None)))
     for b, (start, found) in enumerate(zip(solutions, fastest)):
         assert found.speed_mps > 1.2 * start.speed_mps
-        model = jax.tree.map(lambda a: a[b], batch)
+        # the limit the last round posed on the solve grid (lowered by the excess between its points)
+        posed = found.refinement["solve_grid_power_limit_W"]
+        assert posed <= found.power_limit_W and found.refinement["violations"]["power_limit"] <= 0.01 * posed
+        model = dataclasses.replace(jax.tree.map(lambda a: a[b], batch), power_limit=np.asarray(posed))
         extra = [found.step_length_m / float(model.step_length), float(model.speed) / found.speed_mps]
         params = gait_problem.SpeedParams(model, np.asarray(bounds[0] / 0.2), np.asarray(bounds[1] / 0.2),
                                           np.asarray(0.0))
@@ -372,3 +391,36 @@ def test_the_fastest_gait_is_a_kkt_point_of_max_speed(interior_gaits):
                 for m, s in zip(models, fastest)]
     again = solver.solve([s.name for s in fastest], at_speed, x0=np.stack([s.x for s in fastest]))
     assert [s.status for s in again] == ["converged"] * 4, [(s.status, s.max_violation) for s in again]
+
+
+def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
+    """``biped-jax library``'s study on a 2 x 2 grid in the tests' space: every point converged, its
+    drive demand within the problem's limits (peak power at most M_W, RMS torque at most the peak), the
+    optimal step length at each speed inside the grid's lengths and no dearer per metre than any grid
+    point at that speed (it starts from the cheapest), the files' arrays equal to the JSON; a point that
+    did not converge restarts from its nearest converged neighbour."""
+    from biped_jax.report import outputs
+    from biped_jax.studies import library
+    solver = interior_gaits[0]
+    grid = library.LibraryGrid("12kg", (0.45, 0.6), (0.15, 0.2), 20.0)
+    record = library.run_library(tmp_path, grid, solver=solver)
+    points = record["points"]
+    assert [p["status"] for p in points] == ["converged"] * 4, [p["status"] for p in points]
+    for p in points:
+        assert max(p["power_peak_W"]) <= 20.0 * (1 + 1e-6) and max(p["torque_peak_Nm"]) <= 20.0 * (1 + 1e-6)
+        assert all(rms <= peak for rms, peak in zip(p["torque_rms_Nm"], p["torque_peak_Nm"]))
+        assert p["cost_per_metre"] == pytest.approx(p["cost"] / p["step_length_m"])
+    for i, best in enumerate(record["optimal_step"]):
+        assert best["status"] == "converged" and 0.15 <= best["step_length_m"] <= 0.2
+        row = points[2 * i:2 * i + 2]
+        assert best["cost_per_metre"] <= min(p["cost_per_metre"] for p in row) * (1 + 1e-7)  # solver tolerance
+        assert best["speed_mps"] == pytest.approx(grid.speeds[i])
+    arrays = outputs.read_npz(tmp_path / "library.npz")
+    np.testing.assert_allclose(arrays["cost_per_metre"].ravel(), [p["cost_per_metre"] for p in points])
+    np.testing.assert_allclose(arrays["optimal_step_length_m"], [b["step_length_m"] for b in record["optimal_step"]])
+    assert (tmp_path / "library_map.png").stat().st_size > 0 and (tmp_path / "library_drives.png").stat().st_size > 0
+    converged = np.array([True, False, False, True])
+    assert library._nearest_converged(1, converged, (2, 2)) == 0
+    assert library._nearest_converged(2, converged, (2, 2)) == 0
+    assert library._nearest_converged(2, np.array([False, False, False, True]), (2, 2)) == 3
+    assert library._nearest_converged(0, np.zeros(4, bool), (2, 2)) is None

@@ -40,6 +40,9 @@ GAIT_SOLVER_OPTIONS = interior_point.InteriorPointOptions()
 #: M1-M4). With J beside t each stage is well posed, and its optimum and multipliers start the next
 #: close to its own; at w = 0.001 the limit is within 0.05 % of the epigraph form's (12 spans, M1-M4).
 LIMIT_ENERGY_WEIGHTS = (0.1, 0.01, 0.001, 0.0)
+#: Rounds of :meth:`GaitSolver.fastest_gait` that lower the solve grid's power limit by the excess the
+#: refinement check finds between its points.
+FASTEST_TIGHTENING = 3
 #: The first barrier parameter of every stage after the first (warm: the barrier's centring term
 #: mu m / sum z moves t by about mu times the number m of power rows, 1,544 in the study's grid).
 LIMIT_WARM_MU = 1e-4
@@ -363,7 +366,8 @@ class GaitSolver:
 
     def fastest_gait(self, names: list[str], models: list[gait_problem.GaitModel], x0, bounds,
                      progress: Callable[[int, dict], None] | None = None,
-                     energy_weights: tuple = LIMIT_ENERGY_WEIGHTS) -> list[GaitSolution]:
+                     energy_weights: tuple = LIMIT_ENERGY_WEIGHTS, tightening: int = FASTEST_TIGHTENING
+                     ) -> list[GaitSolution]:
         """The fastest gait of each model: the largest speed v at which it walks within every
         constraint at its own power limit (and with real drives their supply voltage, and with
         ``settings.drive_limits`` the gears' limits), the step length L free within ``bounds`` (low,
@@ -374,26 +378,59 @@ class GaitSolver:
         the last normally 0, whose converged result is a KKT point of max v itself (its multipliers
         those of that problem). v is bounded by :data:`biped_jax.gait.kinds.SPEED_CAP`.
 
+        At the fastest gait the power limit is active over much of the step, and between the solve
+        grid's points the power rises above it. With the refinement check on, up to ``tightening``
+        rounds then solve max v again (warm) with the limit on the solve grid lowered by the excess the
+        4x finer grid found (M_W,k+1 = M_W,k M_W / (M_W + excess)), so that the gait keeps M_W between
+        the grid points too; ``refinement["solve_grid_power_limit_W"]`` holds the limit the last round
+        posed on the solve grid (the model's own where no round ran).
+
         Returns per model a :class:`GaitSolution` at the speed and step length found (``speed_mps``,
-        ``step_length_m``, ``step_time_s``), ``cost`` that gait's J (not minimised), judged and
-        refinement-checked as :meth:`solve`'s: a gait that exceeds its limits between the solve grid's
-        points says so there (``grid dependent``)."""
+        ``step_length_m``, ``step_time_s``) and at the model's own power limit, ``cost`` that gait's J
+        (not minimised), judged and refinement-checked as :meth:`solve`'s."""
         if x0 is None:
             raise ValueError("x0 is None: fastest_gait starts from gaits feasible at the models' own speed and "
                              "step length, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
         x0 = self.check_batch(names, models, x0)
         weights = _check_weights(energy_weights)
+        checks.integer_in("tightening", tightening, 0, 10)
         low, high = check_step_bounds(bounds, [float(m.step_length) for m in models], self.leg_length)
         batch = stack_tree(models)
         lengths, speeds = np.asarray(batch.step_length), np.asarray(batch.speed)
+        own_limit = np.asarray(batch.power_limit)
+
+        def params_at(limit, weight):
+            posed = dataclasses.replace(batch, power_limit=jnp.asarray(limit))
+            return gait_problem.SpeedParams(posed, jnp.asarray(low / lengths), jnp.asarray(high / lengths), weight)
+
         start = np.concatenate([x0, np.ones((len(models), 2))], axis=1)
-        result = self._continuation(
-            "speed", start, lambda w: gait_problem.SpeedParams(batch, jnp.asarray(low / lengths),
-                                                              jnp.asarray(high / lengths), w),
-            self.check(x0, batch).energy, progress, weights)
-        found = dataclasses.replace(batch, step_length=jnp.asarray(lengths * result.x[:, -2]),
-                                    speed=jnp.asarray(speeds / result.x[:, -1]))
-        return self._report(names, found, dataclasses.replace(result, x=result.x[:, :-2]), cost_of_rollout=True)
+        result = self._continuation("speed", start, functools.partial(params_at, own_limit),
+                                    self.check(x0, batch).energy, progress, weights)
+        posed = own_limit
+
+        def found_models(result):
+            return dataclasses.replace(batch, step_length=jnp.asarray(lengths * result.x[:, -2]),
+                                       speed=jnp.asarray(speeds / result.x[:, -1]))
+        rounds = tightening if self.check_refinement else 0
+        for _ in range(rounds):
+            fine = self.check(result.x[:, :-2], found_models(result), refined=True)
+            excess = np.asarray(fine.violations["power_limit"])
+            tighten = excess > 0.5 * verdict.refined_tolerance("power_limit", own_limit)
+            if not tighten.any():
+                break
+            posed = np.where(tighten, posed * own_limit / (own_limit + excess), posed)
+            options = dataclasses.replace(self.options, mu_based_multipliers=True, mu_initial=LIMIT_WARM_MU)
+            again = self._interior_point("speed", jnp.asarray(result.x), params_at(posed, jnp.zeros(len(models))),
+                                         progress, (result.multipliers_eq, result.multipliers_in), options)
+            result = dataclasses.replace(again, outer_iterations=result.outer_iterations + again.outer_iterations,
+                                         gradients=result.gradients + again.gradients,
+                                         wall_time_s=result.wall_time_s + again.wall_time_s,
+                                         history=result.history + again.history)
+        solutions = self._report(names, found_models(result), dataclasses.replace(result, x=result.x[:, :-2]),
+                                 cost_of_rollout=True)
+        for solution, limit in zip(solutions, posed):
+            solution.refinement["solve_grid_power_limit_W"] = float(limit)
+        return solutions
 
     def _continuation(self, kind: str, start, params_at, j0, progress, energy_weights) -> nlp.SolveResult:
         """The interior point on a linear kind's min c + (w_k / J0) E over (x, extra) (c its last

@@ -132,6 +132,7 @@ _TAU_MIN = 0.99         # fraction to the boundary
 _KAPPA_SIGMA = 1e10     # z stays within [mu / (kappa s), kappa mu / s]
 _DELTA_FIRST, _DELTA_MIN, _DELTA_MAX = 1e-4, 1e-20, 1e40
 _GROW_FIRST, _GROW, _SHRINK = 100.0, 8.0, 1.0 / 3.0
+_INERTIA_TRIES = 100  # more than the growth from _DELTA_MIN to _DELTA_MAX takes
 _ARMIJO = 1e-4
 _GAMMA_THETA, _GAMMA_PHI, _GAMMA_ALPHA = 1e-5, 1e-8, 0.05   # the filter's margins, the smallest step
 _S_THETA, _S_PHI, _SWITCH = 1.1, 2.3, 1.0                      # the switching condition
@@ -245,16 +246,18 @@ def _inertia_corrected(matrix, delta_last, floor):
     first = jnp.maximum(first, floor)
 
     def cond(carry):
-        _, delta, ok = carry
-        return ~ok & (delta < _DELTA_MAX)
+        _, delta, ok, tries = carry
+        return ~ok & (delta < _DELTA_MAX) & (tries < _INERTIA_TRIES)
 
     def body(carry):
-        _, delta, _ = carry
-        delta = jnp.where(delta <= floor, first, delta * jnp.where(delta_last == 0.0, _GROW_FIRST, _GROW))
+        _, delta, _, tries = carry
+        # from below ``first`` to it, then growing: with delta = first = floor a matrix that no shift
+        # makes positive definite (one with a NaN) would otherwise be shifted by the same delta for ever
+        delta = jnp.where(delta < first, first, delta * jnp.where(delta_last == 0.0, _GROW_FIRST, _GROW))
         factor = _factor(matrix, delta)
-        return factor, delta, jnp.all(jnp.isfinite(factor))
+        return factor, delta, jnp.all(jnp.isfinite(factor)), tries + 1
 
-    factor, delta, _ = jax.lax.while_loop(cond, body, (factor, floor, ok))
+    factor, delta, _, _ = jax.lax.while_loop(cond, body, (factor, floor, ok, jnp.zeros((), jnp.int32)))
     return factor, delta
 
 

@@ -1,0 +1,259 @@
+"""A gait library (``biped-jax library``): the optimal gaits of one biped over a grid of walking speeds and
+step lengths at a power limit, solved as batches of the interior point and continued along the grid,
+with the optimal step length at every speed and what the drives must deliver there.
+
+- Every grid point is first solved from the heuristic start, all points in one batch.
+- A point whose solve did not converge on its grid is solved again from its nearest converged
+  neighbour's gait (nearest in grid steps; the decision vector is in normalised time, so a neighbour's
+  gait is a start of the same shape), for a few rounds: a continuation along the grid, each round in
+  the grid's own compiled program. Each point records where it started. (A gait that converged but
+  fails the refinement check, "grid dependent", is kept: its grid, not its start, is the cause.)
+- At every speed the step length is then freed (:meth:`~biped_jax.gait.solver.GaitSolver.solve_step_length`)
+  from the grid's cheapest converged point per metre, within the grid's step lengths: the optimal-L
+  curve, all speeds in one batch.
+
+Every point reports J, J / L, t_f, the status and the refinement check, and per joint the peak and RMS
+torque, the peak speed and the peak power. Written: ``library.json``, ``library.npz`` (arrays over the
+grid), ``library_map.png`` (J / L over (speed, L) with the optimal-L curve) and ``library_drives.png``
+(peak torque and speed per joint against speed, at the optimal step length).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from biped_jax import checks
+from biped_jax.gait import problem as gait_problem
+from biped_jax.gait import verdict
+from biped_jax.gait.report import JOINTS
+from biped_jax.gait.solver import GaitSolution, GaitSolver
+from biped_jax.optim import nlp
+from biped_jax.report import outputs
+from biped_jax.robots.planar_biped import ACTUATED_INDEX
+
+#: rad/s per rpm.
+RPM = 2 * np.pi / 60
+
+#: The library's default reference space: 16 knot spans, a shooting segment each, 4 Runge-Kutta steps per
+#: span (the study's 48 spans are three times the work per point; see :data:`QUICK_SETTINGS`).
+LIBRARY_SETTINGS = gait_problem.GaitSettings(spans=16, substeps=4)
+#: ``--quick``: the library's space on a 3 x 3 grid (every file stamped). 8 knot spans left 6 of 9
+#: points "grid dependent" (measured 2026-12-05).
+QUICK_SETTINGS = LIBRARY_SETTINGS
+QUICK_SPEEDS, QUICK_STEP_LENGTHS = (0.3, 0.5, 0.7), (0.1, 0.2, 0.3)
+QUICK_STAMP = "QUICK LOOK (biped-jax library --quick): 3 speeds x 3 step lengths; a coarse grid of speeds and lengths"
+
+
+@dataclasses.dataclass(frozen=True)
+class LibraryGrid:
+    """The grid of a library.
+
+    Attributes:
+      mass_class: "12kg" or "18kg". speeds: walking speeds, m/s, increasing. step_lengths: step lengths,
+        m, increasing. power_limit: the bound on every joint's |qdot u|, W.
+    """
+
+    mass_class: str = "12kg"
+    speeds: tuple = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
+    step_lengths: tuple = (0.1, 0.15, 0.2, 0.25, 0.3)
+    power_limit: float = 20.0
+
+    def __post_init__(self):
+        for name in ("speeds", "step_lengths"):
+            values = getattr(self, name)
+            if not isinstance(values, (list, tuple)) or not values:
+                raise ValueError(f"{name} must be a non-empty list or tuple of numbers, got {values!r:.80}")
+            numbers = np.asarray(values, dtype=float)
+            if not np.all(np.diff(numbers) > 0):
+                raise ValueError(f"{name} must increase, got {list(values)}")
+        self.models()  # names a bad speed, length, limit or mass class
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return len(self.speeds), len(self.step_lengths)
+
+    def models(self) -> list[gait_problem.GaitModel]:
+        """The grid's problems, speed-major ((speed i, length j) at i * len(step_lengths) + j)."""
+        return [gait_problem.gait_model(self.mass_class, float(v), float(self.power_limit), float(length))
+                for v in self.speeds for length in self.step_lengths]
+
+    def names(self) -> list[str]:
+        return [f"{v:g} m/s, {length:g} m" for v in self.speeds for length in self.step_lengths]
+
+
+def _nearest_converged(index: int, converged: np.ndarray, shape: tuple[int, int]) -> int | None:
+    """The converged grid point nearest to ``index`` in grid steps (ties: the lower index), or None."""
+    if not converged.any():
+        return None
+    rows, cols = np.unravel_index(np.arange(converged.size), shape)
+    row, col = np.unravel_index(index, shape)
+    distance = np.abs(rows - row) + np.abs(cols - col)
+    distance = np.where(converged, distance, np.iinfo(int).max)
+    return int(np.argmin(distance))
+
+
+def _iterations(say, label: str):
+    return lambda i, row: say(f"{label}: interior-point iteration {i}, {int(np.sum(row['done']))} of "
+                              f"{row['done'].size} finished")
+
+
+def solve_grid(solver: GaitSolver, grid: LibraryGrid, rounds: int = 3,
+               say: Callable[[str], None] | None = None) -> tuple[list[GaitSolution], list[str]]:
+    """The grid's optimal gaits (speed-major) and where each started ("heuristic", or "from <name>" of
+    the neighbour it was continued from): every point from the heuristic start in one batch, then
+    ``rounds`` rounds re-solving the points that did not converge from their nearest converged
+    neighbour's gait."""
+    say = say or (lambda message: None)
+    names, models = grid.names(), grid.models()
+    solutions = solver.solve(names, models, progress=_iterations(say, "grid"))
+    started = ["heuristic"] * len(names)
+    for k in range(rounds):
+        converged = np.array([s.status == nlp.CONVERGED for s in solutions])
+        say(f"round {k}: {int(converged.sum())} of {converged.size} points converged")
+        # a gait that converged on its grid but fails the refinement check fails it from any start
+        retry = [b for b in range(len(names)) if solutions[b].status not in (nlp.CONVERGED, verdict.GRID_DEPENDENT)]
+        sources = {b: _nearest_converged(b, converged, grid.shape) for b in retry}
+        retry = [b for b in retry if sources[b] is not None]
+        if not retry:
+            break
+        # the retried points repeated up to the grid's size: the program the grid was solved with
+        padded = [retry[i % len(retry)] for i in range(len(names))]
+        again = solver.solve([names[b] for b in padded], [models[b] for b in padded],
+                             x0=np.stack([solutions[sources[b]].x for b in padded]),
+                             progress=_iterations(say, f"round {k + 1}, {len(retry)} points from neighbours"))
+        for b, solution in zip(retry, again):
+            if solution.status == nlp.CONVERGED or solution.max_violation < solutions[b].max_violation:
+                solutions[b], started[b] = solution, f"from {names[sources[b]]}"
+    return solutions, started
+
+
+def optimal_step_lengths(solver: GaitSolver, grid: LibraryGrid, solutions: list[GaitSolution],
+                         say: Callable[[str], None] | None = None) -> list[GaitSolution | None]:
+    """Per speed, the step length of least energy per metre within the grid's step lengths: the free
+    step length solved from the cheapest converged grid point per metre at that speed, or that grid
+    point where the free solve did not converge or ended dearer (None where no point converged); all
+    speeds in one batch."""
+    speeds, lengths = grid.shape
+    picks = []
+    for i in range(speeds):
+        row = solutions[i * lengths:(i + 1) * lengths]
+        usable = [j for j, s in enumerate(row) if s.status == nlp.CONVERGED]
+        picks.append(None if not usable else i * lengths + min(usable, key=lambda j: row[j].energy_per_metre))
+    chosen = [p for p in picks if p is not None]
+    if not chosen:
+        return [None] * speeds
+    bounds = (float(grid.step_lengths[0]), float(grid.step_lengths[-1]))
+    free = solver.solve_step_length([f"{solutions[p].speed_mps:g} m/s, L free" for p in chosen],
+                                    [grid.models()[p] for p in chosen], bounds,
+                                    x0=np.stack([solutions[p].x for p in chosen]),
+                                    progress=say and _iterations(say, "step length free"))
+    found = iter(free)
+    optimal = []
+    for p in picks:
+        solution = None if p is None else next(found)
+        # a local solve from the grid's best point may end in a dearer optimum (or not converge): the
+        # grid point is then the best step known at that speed
+        if solution is not None and not (solution.status == nlp.CONVERGED and
+                                         solution.energy_per_metre <= solutions[p].energy_per_metre * (1 + 1e-6)):
+            solution = solutions[p]
+        optimal.append(solution)
+    return optimal
+
+
+def demand(solution: GaitSolution) -> dict:
+    """What the drives must deliver on a gait, per joint (H1, K1, H2, K2): peak and RMS torque (N m),
+    peak speed (rpm) and peak power (W)."""
+    tr = solution.trajectory
+    torque = np.asarray(tr.u)
+    speed = np.abs(np.asarray(tr.qd)[:, ACTUATED_INDEX])
+    weights = np.asarray(tr.weights)
+    rms = np.sqrt(weights @ torque**2 / solution.step_time_s)
+    return {"torque_peak_Nm": np.abs(torque).max(axis=0).tolist(), "torque_rms_Nm": rms.tolist(),
+            "speed_peak_rpm": (speed.max(axis=0) / RPM).tolist(),
+            "power_peak_W": np.abs(speed * torque).max(axis=0).tolist()}
+
+
+def point_record(solution: GaitSolution, started: str) -> dict:
+    return {"speed_mps": solution.speed_mps, "step_length_m": solution.step_length_m, "status": solution.status,
+            "cost": solution.cost, "cost_per_metre": solution.energy_per_metre, "t_f": solution.step_time_s,
+            "max_violation": solution.max_violation, "refinement_passed": solution.refinement.get("passed"),
+            "refined_cost": solution.refinement.get("cost"), "started": started, **demand(solution)}
+
+
+def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS,
+                rounds: int = 3, say: Callable[[str], None] | None = None, solver: GaitSolver | None = None) -> dict:
+    """Solves the library of ``grid`` in ``settings``' space (or with ``solver``, sharing its compiled
+    programs) and writes its files into ``out``; returns the library record (what ``library.json``
+    holds)."""
+    checks.integer_in("rounds", rounds, 0, 20)
+    say = say or (lambda message: None)
+    solver = solver or GaitSolver(settings, mass_class_template=grid.mass_class)
+    settings = solver.settings
+    out.mkdir(parents=True, exist_ok=True)
+    say(f"{grid.mass_class}, {grid.power_limit:g} W: {grid.shape[0]} speeds x {grid.shape[1]} step lengths "
+        f"in one batch ({settings.spans} knot spans)")
+    solutions, started = solve_grid(solver, grid, rounds, say)
+    say("the optimal step length at every speed")
+    optimal = optimal_step_lengths(solver, grid, solutions, say)
+    record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit, "speeds_mps": list(grid.speeds),
+              "step_lengths_m": list(grid.step_lengths), "settings": dataclasses.asdict(settings),
+              "joints": list(JOINTS), "points": [point_record(s, w) for s, w in zip(solutions, started)],
+              "optimal_step": [None if s is None else point_record(
+                  s, "grid point" if any(s is g for g in solutions) else "free step length") for s in optimal]}
+    outputs.write_json(out / "library.json", record)
+    shape = grid.shape
+    arrays = {"speeds_mps": np.asarray(grid.speeds), "step_lengths_m": np.asarray(grid.step_lengths)}
+    for key in ("cost", "cost_per_metre", "t_f"):
+        arrays[key] = np.array([p[key] for p in record["points"]]).reshape(shape)
+    arrays["converged"] = np.array([p["status"] == nlp.CONVERGED for p in record["points"]]).reshape(shape)
+    for key in ("torque_peak_Nm", "torque_rms_Nm", "speed_peak_rpm", "power_peak_W"):
+        arrays[key] = np.array([p[key] for p in record["points"]]).reshape(*shape, 4)
+    arrays["optimal_step_length_m"] = np.array([np.nan if s is None else s.step_length_m for s in optimal])
+    arrays["optimal_cost_per_metre"] = np.array([np.nan if s is None else s.energy_per_metre for s in optimal])
+    outputs.save_npz(out / "library.npz", **arrays)
+    plot_map(arrays, grid, out / "library_map.png")
+    plot_drives(record, out / "library_drives.png")
+    return record
+
+
+def plot_map(arrays: dict, grid: LibraryGrid, path: Path) -> None:
+    """J / L over (speed, step length), points that did not converge left blank, with the optimal-L curve."""
+    plt = outputs.pyplot()
+    figure, axis = plt.subplots(figsize=(7, 5), constrained_layout=True)
+    value = np.where(arrays["converged"], arrays["cost_per_metre"], np.nan)
+    mesh = axis.pcolormesh(arrays["speeds_mps"], arrays["step_lengths_m"], np.log10(value.T), shading="nearest")
+    figure.colorbar(mesh, ax=axis, label="log10 J / L  [N^2 m s]")
+    axis.plot(arrays["speeds_mps"], arrays["optimal_step_length_m"], "w-o", label="optimal step length")
+    axis.set_xlabel("speed [m/s]")
+    axis.set_ylabel("step length [m]")
+    axis.set_title(f"{grid.mass_class}, M_W = {grid.power_limit:g} W: energy per metre")
+    axis.legend(loc="upper left")
+    outputs.save_figure(figure, path)
+    plt.close(figure)
+
+
+def plot_drives(record: dict, path: Path) -> None:
+    """Peak torque and peak speed per joint against speed, at the optimal step length."""
+    plt = outputs.pyplot()
+    figure, (torque, speed) = plt.subplots(1, 2, figsize=(11, 4.5), constrained_layout=True)
+    rows = [p for p in record["optimal_step"] if p is not None]
+    v = [p["speed_mps"] for p in rows]
+    for k, joint in enumerate(record["joints"]):
+        torque.plot(v, [p["torque_peak_Nm"][k] for p in rows], "-o", label=f"{joint} peak")
+        torque.plot(v, [p["torque_rms_Nm"][k] for p in rows], "--", color=torque.lines[-1].get_color(),
+                    label=f"{joint} RMS")
+        speed.plot(v, [p["speed_peak_rpm"][k] for p in rows], "-o", label=joint)
+    torque.set_xlabel("speed [m/s]")
+    torque.set_ylabel("joint torque [N m]")
+    speed.set_xlabel("speed [m/s]")
+    speed.set_ylabel("peak joint speed [rpm]")
+    torque.legend(fontsize=8, ncol=2)
+    speed.legend(fontsize=8)
+    figure.suptitle(f"{record['mass_class']}, M_W = {record['power_limit_W']:g} W: drive demand at the optimal "
+                    "step length")
+    outputs.save_figure(figure, path)
+    plt.close(figure)
