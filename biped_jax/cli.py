@@ -4,11 +4,12 @@
 the smallest feasible power limits) and writes tables (markdown), figures (PNG) and ``results.json``
 into DIR; ``biped-jax solve`` does the same for one problem of the user's own. ``biped-jax kelly --out
 DIR`` solves Kelly's five-link biped benchmark with the same optimiser and writes ``kelly.json``.
-``biped-jax donald`` walks DONALD in MJX, ``biped-jax humanoid`` replays the optimal gait on the 16-DoF
-humanoid under contact, ``biped-jax codesign`` co-optimises gear ratios and the link masses' split
-with the gait and compares windings and total masses. ``biped-jax step`` simulates one heuristic
-PD-controlled step, ``biped-jax models`` lists the robots and ``biped-jax view NAME`` opens one in
-MuJoCo's viewer.
+``biped-jax library`` solves optimal gaits over speeds and step lengths, ``biped-jax top-speed`` the
+fastest gaits under power limits and on catalogue drives. ``biped-jax donald`` walks DONALD in MJX,
+``biped-jax humanoid`` replays the optimal gait on the 16-DoF humanoid under contact, ``biped-jax
+codesign`` co-optimises gear ratios and the link masses' split with the gait and compares windings and
+total masses. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
+the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
 """
 
 from __future__ import annotations
@@ -52,6 +53,14 @@ def _number(name: str, low: float, high: float):
     return parse
 
 
+def _drive(text: str) -> tuple[str, str]:
+    """An argparse type: MOTOR+GEARHEAD, two catalogue names (checked against the catalogue later)."""
+    parts = text.split("+")
+    if len(parts) != 2 or not all(parts):
+        raise argparse.ArgumentTypeError(f"--drives takes MOTOR+GEARHEAD (e.g. RE25-42V+GP32A-66.22), got {text!r}")
+    return parts[0], parts[1]
+
+
 def _substeps(text: str) -> int:
     value = _integer("substeps", *checks.GAIT_INTEGER_RANGES["substeps"])(text)
     if value % 2:
@@ -80,6 +89,20 @@ def _out_argument(parser) -> None:
     parser.add_argument("--profile-compile", action="store_true",
                         help="list every program JAX compiles (or loads from its cache) with its seconds, "
                              "in OUT/compile_profile.json and a summary at the end")
+
+
+def _problem_arguments(parser, speed: str, step_length: str, grid: bool = False) -> None:
+    """--mass-class, --speed(s), --step-length(s) and --power-limit: one value each, or with ``grid`` lists
+    of speeds and lengths (default None: the command's grid)."""
+    parser.add_argument("--mass-class", choices=("12kg", "18kg"), default="12kg", help="the biped (default 12kg)")
+    lists = {"nargs": "+", "default": None} if grid else {}
+    plural = "s" if grid else ""
+    parser.add_argument(f"--speed{plural}", type=_number(f"speed{plural}", 0.0, 5.0),
+                        **(lists or {"default": 0.555}), help=speed)
+    parser.add_argument(f"--step-length{plural}", type=_number(f"step-length{plural}", 0.0, 1.0),
+                        **(lists or {"default": 0.2}), help=step_length)
+    parser.add_argument("--power-limit", type=_number("power-limit", 0.0, 1e6), default=20.0,
+                        help="bound on every joint's |qdot u|, W (default 20)")
 
 
 def _space_arguments(parser, when: str = "", substeps: int = 8, segments: bool = False, spans: int = 16) -> None:
@@ -119,13 +142,8 @@ def _parser() -> argparse.ArgumentParser:
     own = subcommands.add_parser("solve", help="one gait problem of your own (mass class, speed, step length, "
                                  "power limit), solved as the study solves its models")
     _out_argument(own)
-    own.add_argument("--mass-class", choices=("12kg", "18kg"), default="12kg", help="the biped (default 12kg)")
-    own.add_argument("--speed", type=_number("speed", 0.0, 5.0), default=0.555,
-                     help="average walking speed, m/s, in (0, 5] (default 0.555)")
-    own.add_argument("--step-length", type=_number("step-length", 0.0, 1.0), default=0.2,
-                     help="step length, m (default 0.2; at most the legs' reach)")
-    own.add_argument("--power-limit", type=_number("power-limit", 0.0, 1e6), default=20.0,
-                     help="bound on every joint's |qdot u|, W (default 20)")
+    _problem_arguments(own, speed="average walking speed, m/s, in (0, 5] (default 0.555)",
+                       step_length="step length, m (default 0.2; at most the legs' reach)")
     own.add_argument("--smallest-power-limit", action="store_true",
                      help="also find the smallest power limit at which the model still walks")
     own.add_argument("--free-step-length", type=_number("free-step-length", 0.0, 1.0), nargs=2, default=None,
@@ -149,19 +167,31 @@ def _parser() -> argparse.ArgumentParser:
     library = subcommands.add_parser("library", help="optimal gaits over a grid of speeds and step lengths, the "
                                      "optimal step length at every speed and the drives' demand (figures, JSON, npz)")
     _out_argument(library)
-    library.add_argument("--mass-class", choices=("12kg", "18kg"), default="12kg", help="the biped (default 12kg)")
-    library.add_argument("--speeds", type=_number("speeds", 0.0, 5.0), nargs="+", default=None,
-                         help="walking speeds, m/s, increasing (default 0.2 0.3 0.4 0.5 0.6 0.7)")
-    library.add_argument("--step-lengths", type=_number("step-lengths", 0.0, 1.0), nargs="+", default=None,
-                         help="step lengths, m, increasing (default 0.1 0.15 0.2 0.25 0.3)")
-    library.add_argument("--power-limit", type=_number("power-limit", 0.0, 1e6), default=20.0,
-                         help="bound on every joint's |qdot u|, W (default 20)")
+    _problem_arguments(library, speed="walking speeds, m/s, increasing (default 0.2 0.3 0.4 0.5 0.6 0.7)",
+                       step_length="step lengths, m, increasing (default 0.1 0.15 0.2 0.25 0.3)", grid=True)
     library.add_argument("--rounds", type=_integer("rounds", 0, 20), default=3,
                          help="rounds of re-solving points that did not converge from their neighbours (default 3)")
     library.add_argument("--quick", action="store_true",
                          help="a first look: 3 speeds x 3 step lengths (overrides --speeds, --step-lengths and "
                               "the space); every file it writes says so")
     _space_arguments(library, substeps=4, spans=16)
+    fast = subcommands.add_parser("top-speed", help="how fast it can walk: the fastest gait under each power limit "
+                                  "(v_max(M_W) per mass class) and on catalogue drives (figure, JSON)")
+    _out_argument(fast)
+    fast.add_argument("--mass-classes", choices=("12kg", "18kg"), nargs="+", default=["12kg", "18kg"],
+                      help="the bipeds (default both)")
+    fast.add_argument("--power-limits", type=_number("power-limits", 0.0, 1e6), nargs="*", default=None,
+                      help="bounds on every joint's |qdot u|, W, with ideal drives (default 5 10 20 40; "
+                           "none: drives only)")
+    fast.add_argument("--drives", type=_drive, nargs="*", default=None, metavar="MOTOR+GEARHEAD",
+                      help="catalogue drives at every joint, e.g. RE25-42V+GP32A-66.22 (default the paper's "
+                           "RE25-42V on GP32A-51, -66.22 and -79; none: power limits only)")
+    fast.add_argument("--supply-voltage", type=_number("supply-voltage", 0.0, 1e4), default=None,
+                      help="the drives' supply voltage, V (default the catalogue's 38)")
+    fast.add_argument("--quick", action="store_true",
+                      help="a first look: 10 and 20 W and the paper's drive (overrides --power-limits and --drives); "
+                           "every file it writes says so")
+    _space_arguments(fast, substeps=4, spans=16)
     bench = subcommands.add_parser("kelly", help="solve Kelly's five-link biped benchmark (SIAM Review 2017)")
     _out_argument(bench)
     _space_arguments(bench)
@@ -217,6 +247,7 @@ def _parser() -> argparse.ArgumentParser:
 
 #: What each command runs (:mod:`biped_jax.commands`).
 RUNS = {"reproduce": commands.run_reproduce, "solve": commands.run_solve, "library": commands.run_library,
+        "top-speed": commands.run_top_speed,
         "kelly": commands.run_kelly,
         "donald": commands.run_donald, "humanoid": commands.run_humanoid, "codesign": commands.run_codesign,
         "drives": commands.run_drives, "step": commands.run_step, "models": commands.run_models,
@@ -234,6 +265,8 @@ def main(argv: list[str] | None = None) -> int:
         args.checked = commands.check_solve(args)  # the problem's own checks, before the output folder is made
     if args.command == "library":
         args.checked = commands.check_library(args)
+    if args.command == "top-speed":
+        args.checked = commands.check_top_speed(args)
     if not hasattr(args, "out"):
         return args.run(args)
     with interrupts.handled():

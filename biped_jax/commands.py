@@ -6,6 +6,7 @@ import JAX only when a command runs."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -308,6 +309,50 @@ def run_library(args) -> int:
     return 0
 
 
+def check_top_speed(args):
+    """The problems and space of ``biped-jax top-speed``, checked before the output folder is touched."""
+    from biped_jax.studies import top_speed as study
+    configure_jax()
+    limits = study.QUICK_POWER_LIMITS if args.quick else (
+        study.POWER_LIMITS if args.power_limits is None else tuple(args.power_limits))
+    drives = study.QUICK_DRIVES if args.quick else (study.DRIVES if args.drives is None else tuple(args.drives))
+    try:
+        chosen = study.problems(tuple(args.mass_classes), limits, drives, args.supply_voltage)
+        if not chosen:
+            raise ValueError("--power-limits and --drives are both empty: nothing to solve")
+        if args.supply_voltage is not None and not drives:
+            raise ValueError(f"--supply-voltage {args.supply_voltage:g} applies to drives: give --drives")
+    except ValueError as error:
+        args.parser.error(str(error))
+    settings = dataclasses.replace(_settings(args), drive_limits=True)
+    return chosen, settings
+
+
+def run_top_speed(args) -> int:
+    """The fastest gaits with a live progress line; see :mod:`biped_jax.studies.top_speed`."""
+    from biped_jax.studies import top_speed as study
+    chosen, settings = getattr(args, "checked", None) or check_top_speed(args)
+    started = time.perf_counter()
+    stamp = outputs.stamped(study.QUICK_STAMP) if args.quick else contextlib.nullcontext()
+    with live_progress(("start:", "fastest gait:")) as progress, stamp:
+        record = study.run_top_speed(args.out, chosen, settings, say=progress)
+    for entry in record["problems"]:
+        if entry["top_speed_mps"] is None:
+            console.print(f"  {entry['name']}: no top speed (the start at {record['start_speed_mps']:g} m/s: "
+                          f"{entry['start']['status']})")
+            continue
+        line = (f"  {entry['name']}: {entry['top_speed_mps']:.3f} m/s at L = {entry['step_length_m']:.3f} m "
+                f"({entry['status']}, kept on the 4x grid: {'yes' if entry['refinement_passed'] else 'no'})")
+        check = entry.get("drive_check")
+        if check is not None:
+            walk = check["walk_time_s"]
+            line += ("; catalogue check: " + ("passes" if check["passes_catalogue_check"] else "fails")
+                     + (", walks indefinitely" if walk is None else f", walks {walk / 60:.1f} min from 25 C"))
+        console.print(line)
+    console.print(f"wrote {args.out}/top_speed.json, top_speed.png in {time.perf_counter() - started:.0f} s")
+    return 0
+
+
 def run_kelly(args) -> int:
     configure_jax()
     settings = _settings(args)
@@ -380,11 +425,10 @@ def check_solve(args):
     try:
         problem.model()
         if args.free_step_length is not None or args.fastest:
-            from biped_jax.gait.solver import check_step_bounds
-            from biped_jax.robots.specs import PLANAR_SPECS
+            from biped_jax.gait.settings import check_step_bounds
             from biped_jax.studies.solve import FASTEST_STEP_BOUNDS
             check_step_bounds(tuple(args.free_step_length or FASTEST_STEP_BOUNDS), [problem.step_length],
-                              PLANAR_SPECS[problem.mass_class].leg_length)
+                              problem.mass_class)
     except ValueError as error:
         args.parser.error(str(error))
     return problem, _settings(args)

@@ -349,6 +349,11 @@ def _solver_rows(solver, model):
         ("fastest gait, bounds beside the start", lambda: solver.fastest_gait(["M2"], [model], np.zeros((1, n)),
                                                                               (0.25, 0.3)),
          ValueError, "must hold every model's step length"),
+        ("too many tightening rounds", lambda: solver.solve(["M2"], [model], tightening=11), ValueError,
+         "tightening must be"),
+        ("tightening without the check", lambda: type(solver)(
+            solver.settings, check_refinement=False).solve(["M2"], [model], tightening=1), ValueError,
+         "tightening=1 needs the refinement check"),
         ("multistart: names and models", lambda: solve_multistart(solver, ["M2"], [model, model]), ValueError,
          "1 names, 2 models"),
         ("multistart: no families", lambda: solve_multistart(solver, ["M2"], [model], families=()), ValueError,

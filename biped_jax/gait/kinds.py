@@ -18,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
-import jax
 import jax.numpy as jnp
 
 from biped_jax.gait.settings import with_limit_fraction, with_step_fraction
@@ -29,9 +28,8 @@ from biped_jax.optim import nlp
 SPEED_CAP = 5.0
 
 
-def step_bounds(fraction, params) -> jax.Array:
-    """The free step length's bound rows (g <= 0), (2,): low - l and l - high."""
-    return jnp.stack([params.low - fraction, fraction - params.high])
+#: The free step length's bound rows (g <= 0): low - l and l - high, l the first column beside x.
+STEP_BOUNDS = (lambda extra, params: params.low - extra[0], lambda extra, params: extra[0] - params.high)
 
 
 def _with_pace(model, pace):
@@ -48,16 +46,14 @@ class ProblemKind:
       model: ``(params, extra) -> GaitModel`` the rows are posed on.
       per_metre: the objective's energy is J / l with l = extra[0] (the residuals scaled by
         1 / sqrt(l)).
-      bounds: ``(extra, params) -> g rows (<= 0)`` after the gait's inequalities, or None.
-      bound_rows: how many.
+      bounds: the rows after the gait's inequalities, each ``(extra, params) -> g (<= 0)``, a scalar.
       linear: the objective is extra[-1] + params.energy_weight * (the energy): minimise that column.
     """
 
     columns: int
     model: Callable
     per_metre: bool = False
-    bounds: Callable | None = None
-    bound_rows: int = 0
+    bounds: tuple[Callable, ...] = ()
     linear: bool = False
 
     def scaled_residuals(self, r, extra):
@@ -67,19 +63,19 @@ class ProblemKind:
 
     def with_bounds(self, g, extra, params):
         """The inequalities ``g`` followed by the kind's bound rows."""
-        return g if self.bounds is None else jnp.concatenate([g, self.bounds(extra, params)])
+        if not self.bounds:
+            return g
+        return jnp.concatenate([g, jnp.stack([row(extra, params) for row in self.bounds])])
 
 
 KINDS = {
     "energy": ProblemKind(0, lambda params, extra: params),
     "limit": ProblemKind(1, lambda params, extra: with_limit_fraction(params.model, extra[0]), linear=True),
     "step": ProblemKind(1, lambda params, extra: with_step_fraction(params.model, extra[0]), per_metre=True,
-                        bounds=lambda extra, params: step_bounds(extra[0], params), bound_rows=2),
+                        bounds=STEP_BOUNDS),
     "speed": ProblemKind(
         2, lambda params, extra: _with_pace(with_step_fraction(params.model, extra[0]), extra[1]), per_metre=True,
-        bounds=lambda extra, params: jnp.concatenate([step_bounds(extra[0], params),
-                                                      (params.model.speed / SPEED_CAP - extra[1])[None]]),
-        bound_rows=3, linear=True),
+        bounds=STEP_BOUNDS + (lambda extra, params: params.model.speed / SPEED_CAP - extra[1],), linear=True),
 }
 
 

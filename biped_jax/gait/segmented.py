@@ -129,7 +129,7 @@ class _Split:
                     base = k * g_size + offsets[name] + block * (per + 1) * width + p * width
                     order_g += list(range(base, base + width))
         # the kind's bounds, after the gait's rows
-        order_g += [split_g + boundary_size + k for k in range(self.spec.bound_rows)]
+        order_g += [split_g + boundary_size + k for k in range(len(self.spec.bounds))]
         return tuple(np.asarray(o, dtype=np.int32) for o in (order_r, order_h, order_g))
 
     # -- the rows of one segment

@@ -155,6 +155,21 @@ def check_problem(speed, power_limit, step_length, mass_class: str = "12kg") -> 
                          f"(< {reach:.3g} m)")
 
 
+def check_step_bounds(bounds, lengths: list[float], mass_class: str = "12kg") -> tuple[float, float]:
+    """(low, high) in m from ``bounds``; ValueError naming them unless 0 < low <= every model's step
+    length <= high < the legs' reach (2 leg lengths of ``mass_class``): the bounds of a free step length."""
+    if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(
+            isinstance(b, (int, float)) and not isinstance(b, bool) and np.isfinite(b) for b in bounds):
+        raise ValueError(f"bounds must be a pair (low, high) of step lengths in m, got {bounds!r:.80}")
+    low, high = (float(b) for b in bounds)
+    reach = 2 * PLANAR_SPECS[mass_class].leg_length
+    if not 0 < low <= min(lengths) or not max(lengths) <= high < reach:
+        raise ValueError(f"bounds ({low}, {high}) m must hold every model's step length "
+                         f"({min(lengths):.3g}-{max(lengths):.3g} m, the start) with 0 < low and high below "
+                         f"the legs' reach ({reach:.3g} m)")
+    return low, high
+
+
 def gait_model(mass_class: str, speed: float, power_limit: float, step_length: float = 0.2) -> GaitModel:
     """A problem of docs/gait-problem.md for the biped ``mass_class`` ("12kg", "18kg" or "kelly") with
     ideal drives (the paper's problem; ``biped_jax.codesign.design_gait_model`` fits real ones);

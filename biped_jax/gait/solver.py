@@ -40,9 +40,11 @@ GAIT_SOLVER_OPTIONS = interior_point.InteriorPointOptions()
 #: M1-M4). With J beside t each stage is well posed, and its optimum and multipliers start the next
 #: close to its own; at w = 0.001 the limit is within 0.05 % of the epigraph form's (12 spans, M1-M4).
 LIMIT_ENERGY_WEIGHTS = (0.1, 0.01, 0.001, 0.0)
-#: Rounds of :meth:`GaitSolver.fastest_gait` that lower the solve grid's power limit by the excess the
-#: refinement check finds between its points.
-FASTEST_TIGHTENING = 3
+#: Rounds that lower the solve grid's power limit by the excess the refinement check finds between its
+#: points (:meth:`GaitSolver.solve`, :meth:`GaitSolver.fastest_gait`): where the limit is active over much
+#: of the step the power rises above it between the grid's samples; one round has sufficed in every case
+#: measured (the fastest gaits of M1-M4, 2026-12-05).
+POWER_TIGHTENING = 3
 #: The first barrier parameter of every stage after the first (warm: the barrier's centring term
 #: mu m / sum z moves t by about mu times the number m of power rows, 1,544 in the study's grid).
 LIMIT_WARM_MU = 1e-4
@@ -130,19 +132,20 @@ def _check_weights(energy_weights) -> tuple[float, ...]:
     return tuple(float(w) for w in weights)
 
 
-def check_step_bounds(bounds, lengths: list[float], leg_length: float) -> tuple[float, float]:
-    """(low, high) in m from ``bounds``; ValueError naming them unless 0 < low <= every model's step
-    length <= high < the legs' reach (2 leg lengths)."""
-    if not isinstance(bounds, (list, tuple)) or len(bounds) != 2 or not all(
-            isinstance(b, (int, float)) and not isinstance(b, bool) and np.isfinite(b) for b in bounds):
-        raise ValueError(f"bounds must be a pair (low, high) of step lengths in m, got {bounds!r:.80}")
-    low, high = (float(b) for b in bounds)
-    reach = 2 * leg_length
-    if not 0 < low <= min(lengths) or not max(lengths) <= high < reach:
-        raise ValueError(f"bounds ({low}, {high}) m must hold every model's step length "
-                         f"({min(lengths):.3g}-{max(lengths):.3g} m, the start) with 0 < low and high below "
-                         f"the legs' reach ({reach:.3g} m)")
-    return low, high
+def _merge_rows(rows, again: nlp.SolveResult, before: nlp.SolveResult) -> nlp.SolveResult:
+    """``again``'s problems where ``rows`` (B,) bool, ``before``'s elsewhere; counts, time and history of
+    both solves."""
+    def pick(new, old):
+        new, old = np.asarray(new), np.asarray(old)
+        return np.where(rows.reshape((-1,) + (1,) * (old.ndim - 1)), new, old)
+    fields = ("x", "cost", "equalities", "inequalities", "violation", "stationarity", "multipliers_eq",
+              "multipliers_in")
+    return dataclasses.replace(
+        before, **{f: pick(getattr(again, f), getattr(before, f)) for f in fields},
+        status=[a if r else b for r, a, b in zip(rows, again.status, before.status)],
+        outer_iterations=before.outer_iterations + np.where(rows, again.outer_iterations, 0),
+        gradients=before.gradients + np.where(rows, again.gradients, 0),
+        wall_time_s=before.wall_time_s + again.wall_time_s, history=before.history + again.history)
 
 
 def _check_options(options) -> None:
@@ -172,6 +175,7 @@ class GaitSolver:
         self.settings, self.options = settings, options
         self.require_refinement = require_refinement and check_refinement
         self.check_refinement = check_refinement
+        self.mass_class = mass_class_template
         self.biped = mjx_biped.load_planar_biped(mass_class_template)  # designs replace its masses
         self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
         biped, settings_ = self.biped, settings
@@ -285,15 +289,28 @@ class GaitSolver:
         return x0
 
     def solve(self, names: list[str], models: list[gait_problem.GaitModel], x0=None,
-              progress: Callable[[int, dict], None] | None = None, multipliers=None) -> list[GaitSolution]:
+              progress: Callable[[int, dict], None] | None = None, multipliers=None,
+              tightening: int | None = None) -> list[GaitSolution]:
         """Solves every model in one batch (one compiled program); x0 (B, n) warm-starts, and so do
         ``multipliers`` (equalities (B, m_h), inequalities (B, m_g): those of solutions of the same
         space, such as a neighbouring problem's). ``progress`` gets (iteration, row of (B,) arrays:
-        "cost", "violation", "error", "done") after every block of iterations."""
+        "cost", "violation", "error", "done") after every block of iterations.
+
+        A converged gait whose power exceeds its limit between the grid's samples (the refinement
+        check's power group fails) is solved again, warm, with the limit on the solve grid lowered by
+        that excess, up to ``tightening`` rounds (None: :data:`POWER_TIGHTENING` where the check
+        decides the status, none where it is only recorded); ``refinement["solve_grid_power_limit_W"]``
+        holds the limit posed on the solve grid (the model's own where no round ran)."""
         x0 = self.check_batch(names, models, x0, multipliers)
+        rounds = self._tightening_rounds(tightening)
         batch = stack_tree(models)
         x0 = self._initial_guess(batch) if x0 is None else jnp.asarray(x0)
-        return self._report(names, batch, self._interior_point("energy", x0, batch, progress, multipliers))
+        result = self._interior_point("energy", x0, batch, progress, multipliers)
+        result, posed, checked = self._hold_power_between_samples(
+            "energy", result, lambda r: (r.x, batch),
+            lambda limit: dataclasses.replace(batch, power_limit=jnp.asarray(limit)), np.asarray(batch.power_limit),
+            rounds, progress, dataclasses.replace(self.options, mu_initial=LIMIT_WARM_MU))
+        return self._with_posed_limit(self._report(names, batch, result, checked=checked), posed)
 
     def minimise_power_limit(self, names: list[str], models: list[gait_problem.GaitModel], x0,
                              progress: Callable[[int, dict], None] | None = None,
@@ -353,7 +370,7 @@ class GaitSolver:
         objective), judged and refinement-checked as :meth:`solve`'s; the multipliers are those of
         the problem in (x, l), the bounds' two last."""
         x0 = self.check_batch(names, models, x0)
-        low, high = check_step_bounds(bounds, [float(m.step_length) for m in models], self.leg_length)
+        low, high = gait_problem.check_step_bounds(bounds, [float(m.step_length) for m in models], self.mass_class)
         batch = stack_tree(models)
         x0 = np.asarray(self._initial_guess(batch)) if x0 is None else x0
         start = np.concatenate([x0, np.ones((len(models), 1))], axis=1)
@@ -366,8 +383,7 @@ class GaitSolver:
 
     def fastest_gait(self, names: list[str], models: list[gait_problem.GaitModel], x0, bounds,
                      progress: Callable[[int, dict], None] | None = None,
-                     energy_weights: tuple = LIMIT_ENERGY_WEIGHTS, tightening: int = FASTEST_TIGHTENING
-                     ) -> list[GaitSolution]:
+                     energy_weights: tuple = LIMIT_ENERGY_WEIGHTS, tightening: int | None = None) -> list[GaitSolution]:
         """The fastest gait of each model: the largest speed v at which it walks within every
         constraint at its own power limit (and with real drives their supply voltage, and with
         ``settings.drive_limits`` the gears' limits), the step length L free within ``bounds`` (low,
@@ -379,10 +395,10 @@ class GaitSolver:
         those of that problem). v is bounded by :data:`biped_jax.gait.kinds.SPEED_CAP`.
 
         At the fastest gait the power limit is active over much of the step, and between the solve
-        grid's points the power rises above it. With the refinement check on, up to ``tightening``
-        rounds then solve max v again (warm) with the limit on the solve grid lowered by the excess the
-        4x finer grid found (M_W,k+1 = M_W,k M_W / (M_W + excess)), so that the gait keeps M_W between
-        the grid points too; ``refinement["solve_grid_power_limit_W"]`` holds the limit the last round
+        grid's points the power rises above it. Up to ``tightening`` rounds (None: as :meth:`solve`'s)
+        then solve max v again (warm) with the limit on the solve grid lowered by the excess the 4x finer
+        grid found (M_W,k+1 = M_W,k M_W / (M_W + excess)), so that the gait keeps M_W between the grid
+        points too; ``refinement["solve_grid_power_limit_W"]`` holds the limit the last round
         posed on the solve grid (the model's own where no round ran).
 
         Returns per model a :class:`GaitSolution` at the speed and step length found (``speed_mps``,
@@ -393,8 +409,8 @@ class GaitSolver:
                              "step length, shape (B, n) (e.g. the x of solve()'s solutions, stacked)")
         x0 = self.check_batch(names, models, x0)
         weights = _check_weights(energy_weights)
-        checks.integer_in("tightening", tightening, 0, 10)
-        low, high = check_step_bounds(bounds, [float(m.step_length) for m in models], self.leg_length)
+        rounds = self._tightening_rounds(tightening)
+        low, high = gait_problem.check_step_bounds(bounds, [float(m.step_length) for m in models], self.mass_class)
         batch = stack_tree(models)
         lengths, speeds = np.asarray(batch.step_length), np.asarray(batch.speed)
         own_limit = np.asarray(batch.power_limit)
@@ -406,28 +422,61 @@ class GaitSolver:
         start = np.concatenate([x0, np.ones((len(models), 2))], axis=1)
         result = self._continuation("speed", start, functools.partial(params_at, own_limit),
                                     self.check(x0, batch).energy, progress, weights)
-        posed = own_limit
 
         def found_models(result):
             return dataclasses.replace(batch, step_length=jnp.asarray(lengths * result.x[:, -2]),
                                        speed=jnp.asarray(speeds / result.x[:, -1]))
-        rounds = tightening if self.check_refinement else 0
-        for _ in range(rounds):
-            fine = self.check(result.x[:, :-2], found_models(result), refined=True)
-            excess = np.asarray(fine.violations["power_limit"])
-            tighten = excess > 0.5 * verdict.refined_tolerance("power_limit", own_limit)
-            if not tighten.any():
-                break
-            posed = np.where(tighten, posed * own_limit / (own_limit + excess), posed)
-            options = dataclasses.replace(self.options, mu_based_multipliers=True, mu_initial=LIMIT_WARM_MU)
-            again = self._interior_point("speed", jnp.asarray(result.x), params_at(posed, jnp.zeros(len(models))),
-                                         progress, (result.multipliers_eq, result.multipliers_in), options)
-            result = dataclasses.replace(again, outer_iterations=result.outer_iterations + again.outer_iterations,
-                                         gradients=result.gradients + again.gradients,
-                                         wall_time_s=result.wall_time_s + again.wall_time_s,
-                                         history=result.history + again.history)
+        options = dataclasses.replace(self.options, mu_based_multipliers=True, mu_initial=LIMIT_WARM_MU)
+        result, posed, checked = self._hold_power_between_samples(
+            "speed", result, lambda r: (r.x[:, :-2], found_models(r)),
+            lambda limit: params_at(limit, jnp.zeros(len(models))), own_limit, rounds, progress, options)
         solutions = self._report(names, found_models(result), dataclasses.replace(result, x=result.x[:, :-2]),
-                                 cost_of_rollout=True)
+                                 cost_of_rollout=True, checked=checked)
+        return self._with_posed_limit(solutions, posed)
+
+    def _tightening_rounds(self, tightening: int | None) -> int:
+        """The rounds of :meth:`_hold_power_between_samples` asked for (None: the default, see :meth:`solve`)."""
+        if tightening is None:
+            return POWER_TIGHTENING if self.require_refinement else 0
+        checks.integer_in("tightening", tightening, 0, 10)
+        if tightening and not self.check_refinement:
+            raise ValueError(f"tightening={tightening} needs the refinement check, which this solver skips "
+                             "(check_refinement=False): pass tightening=0")
+        return tightening
+
+    def _hold_power_between_samples(self, kind: str, result: nlp.SolveResult, gait_of, params_at, own_limit,
+                                    rounds: int, progress, options) -> tuple:
+        """The power limit held between the solve grid's samples, for ``kind``'s converged problems:
+        each round re-simulates the gaits (``gait_of(result)`` -> (x (B, n), models at their own limits))
+        on both grids and, where the refinement check fails on the power limit alone (another failed
+        check would leave the gait grid dependent whatever the limit), solves the problem again warm
+        (``options``) with the limit on the solve grid lowered by the excess between its samples,
+        M_k+1 = M_k M_W / (M_W + excess) (``params_at(limits (B,))``: the kind's params posing them).
+        The smallest power limit's problem needs no rounds: scaling its limit scales its optimum t and
+        leaves its gait unchanged.
+
+        Returns (result, the limits last posed (B,) W, the checks of the result's gaits on the solve
+        grid and on the refinement grid (None, None without the refinement check))."""
+        posed = np.asarray(own_limit, dtype=float)
+        if not self.check_refinement:
+            return result, posed, (None, None)
+        for round_ in range(rounds + 1):
+            x, models = gait_of(result)
+            coarse, fine = self.check(x, models), self.check(x, models, refined=True)
+            records = verdict.refinement_records(coarse.energy, fine, own_limit, self.refined_settings.steps)
+            tighten = np.array([s == nlp.CONVERGED and r["failed"] == ["power_limit"]
+                                for s, r in zip(result.status, records)])
+            if round_ == rounds or not tighten.any():
+                break
+            excess = np.asarray(fine.violations["power_limit"])
+            posed = np.where(tighten, posed * own_limit / (own_limit + excess), posed)
+            again = self._interior_point(kind, jnp.asarray(result.x), params_at(posed), progress,
+                                         (result.multipliers_eq, result.multipliers_in), options)
+            result = _merge_rows(tighten, again, result)
+        return result, posed, (coarse, fine)
+
+    @staticmethod
+    def _with_posed_limit(solutions: list[GaitSolution], posed) -> list[GaitSolution]:
         for solution, limit in zip(solutions, posed):
             solution.refinement["solve_grid_power_limit_W"] = float(limit)
         return solutions
@@ -456,12 +505,18 @@ class GaitSolver:
             history=[row for r in stages for row in r.history])
 
     def _report(self, names: list[str], batch: gait_problem.GaitModel, result: nlp.SolveResult,
-                cost_of_rollout: bool = False, fine: verdict.GridCheck | None = None) -> list[GaitSolution]:
+                cost_of_rollout: bool = False, fine: verdict.GridCheck | None = None,
+                checked: tuple | None = None) -> list[GaitSolution]:
         """GaitSolutions of a solver result on the models ``batch`` (leading dimension B): the batch
         re-simulated and checked on the refined grid by one program per grid, classified, then cut
         into one solution per problem. ``cost_of_rollout``: J is the re-simulated gait's, not the
-        solver's objective. ``fine``: the refined grid's check of ``result.x`` when the caller has it."""
-        coarse = self.check(result.x, batch)
+        solver's objective. ``fine``: the refined grid's check of ``result.x`` when the caller has it;
+        ``checked``: (the solve grid's, the refined grid's) when it has both."""
+        coarse = None
+        if checked is not None:
+            coarse, fine = checked
+        if coarse is None:
+            coarse = self.check(result.x, batch)
         if fine is None and self.check_refinement:
             fine = self.check(result.x, batch, refined=True)
         numeric = jax.tree.map(np.asarray, batch)

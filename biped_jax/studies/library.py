@@ -31,7 +31,7 @@ from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import verdict
 from biped_jax.gait.report import JOINTS
 from biped_jax.gait.solver import GaitSolution, GaitSolver
-from biped_jax.optim import nlp
+from biped_jax.optim import interior_point, nlp
 from biped_jax.report import outputs
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
@@ -44,6 +44,10 @@ LIBRARY_SETTINGS = gait_problem.GaitSettings(spans=16, substeps=4)
 #: ``--quick``: the library's space on a 3 x 3 grid (every file stamped). 8 knot spans left 6 of 9
 #: points "grid dependent" (measured 2026-12-05).
 QUICK_SETTINGS = LIBRARY_SETTINGS
+#: The library's interior point: once 90 % of a batch's points have finished the others get 60 more
+#: iterations (a point that needs more is re-solved from a converged neighbour, a better start than
+#: more iterations from the heuristic one).
+LIBRARY_OPTIONS = interior_point.InteriorPointOptions(max_iterations=150, quorum=0.9, patience=60)
 QUICK_SPEEDS, QUICK_STEP_LENGTHS = (0.3, 0.5, 0.7), (0.1, 0.2, 0.3)
 QUICK_STAMP = "QUICK LOOK (biped-jax library --quick): 3 speeds x 3 step lengths; a coarse grid of speeds and lengths"
 
@@ -147,8 +151,9 @@ def optimal_step_lengths(solver: GaitSolver, grid: LibraryGrid, solutions: list[
     if not chosen:
         return [None] * speeds
     bounds = (float(grid.step_lengths[0]), float(grid.step_lengths[-1]))
+    models = grid.models()
     free = solver.solve_step_length([f"{solutions[p].speed_mps:g} m/s, L free" for p in chosen],
-                                    [grid.models()[p] for p in chosen], bounds,
+                                    [models[p] for p in chosen], bounds,
                                     x0=np.stack([solutions[p].x for p in chosen]),
                                     progress=say and _iterations(say, "step length free"))
     found = iter(free)
@@ -191,7 +196,7 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
     holds)."""
     checks.integer_in("rounds", rounds, 0, 20)
     say = say or (lambda message: None)
-    solver = solver or GaitSolver(settings, mass_class_template=grid.mass_class)
+    solver = solver or GaitSolver(settings, LIBRARY_OPTIONS, mass_class_template=grid.mass_class)
     settings = solver.settings
     out.mkdir(parents=True, exist_ok=True)
     say(f"{grid.mass_class}, {grid.power_limit:g} W: {grid.shape[0]} speeds x {grid.shape[1]} step lengths "
