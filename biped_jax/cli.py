@@ -57,7 +57,7 @@ def _drive(text: str) -> tuple[str, str]:
     """An argparse type: MOTOR+GEARHEAD, two catalogue names (checked against the catalogue later)."""
     parts = text.split("+")
     if len(parts) != 2 or not all(parts):
-        raise argparse.ArgumentTypeError(f"--drives takes MOTOR+GEARHEAD (e.g. RE25-42V+GP32A-66.22), got {text!r}")
+        raise argparse.ArgumentTypeError(f"a drive is MOTOR+GEARHEAD (e.g. RE25-42V+GP32A-66.22), got {text!r}")
     return parts[0], parts[1]
 
 
@@ -169,6 +169,14 @@ def _parser() -> argparse.ArgumentParser:
     _out_argument(library)
     _problem_arguments(library, speed="walking speeds, m/s, increasing (default 0.2 0.3 0.4 0.5 0.6 0.7)",
                        step_length="step lengths, m, increasing (default 0.1 0.15 0.2 0.25 0.3)", grid=True)
+    library.add_argument("--drive", type=_drive, default=None, metavar="MOTOR+GEARHEAD",
+                         help="a catalogue drive at every joint, e.g. RE25-42V+GP32A-66.22 (default: ideal drives, the "
+                              "paper's problem): the robot carries it, J is the motors' Joule energy, the gaits keep "
+                              "its voltage and gear limits, and every point gets its catalogue check and walk time")
+    library.add_argument("--supply-voltage", type=_number("supply-voltage", 0.0, 1e4), default=None,
+                         help="the drive's supply voltage, V (with --drive; default the catalogue's 38)")
+    library.add_argument("--all-families", action="store_true",
+                         help="start every point from all nine start families of the study (default three)")
     library.add_argument("--rounds", type=_integer("rounds", 0, 20), default=3,
                          help="rounds of re-solving points that did not converge from their neighbours (default 3)")
     library.add_argument("--quick", action="store_true",

@@ -276,34 +276,48 @@ def check_library(args):
     from biped_jax.studies import library as library_study
     configure_jax()
     try:
+        drive = {"drive": args.drive, "supply_voltage": args.supply_voltage}
         if args.quick:
             return (library_study.LibraryGrid(args.mass_class, library_study.QUICK_SPEEDS,
-                                              library_study.QUICK_STEP_LENGTHS, args.power_limit),
+                                              library_study.QUICK_STEP_LENGTHS, args.power_limit, **drive),
                     library_study.QUICK_SETTINGS)
         defaults = library_study.LibraryGrid()
         grid = library_study.LibraryGrid(args.mass_class, tuple(args.speeds or defaults.speeds),
-                                         tuple(args.step_lengths or defaults.step_lengths), args.power_limit)
+                                         tuple(args.step_lengths or defaults.step_lengths), args.power_limit, **drive)
     except ValueError as error:
         args.parser.error(str(error))
     return grid, _settings(args)
 
 
+def _walk_words(check: dict | None) -> str:
+    """A drive check's verdict and walk time, in words ('' without a drive)."""
+    if check is None:
+        return ""
+    walk = check["walk_time_s"]
+    return ("; catalogue check: " + ("passes" if check["passes_catalogue_check"] else "fails")
+            + (", walks indefinitely" if walk is None else f", walks {walk / 60:.1f} min from 25 C"))
+
+
 def run_library(args) -> int:
     """A gait library with a live progress line; see :mod:`biped_jax.studies.library`."""
     from biped_jax.studies import library as library_study
+    from biped_jax.studies import paper
     grid, settings = getattr(args, "checked", None) or check_library(args)
     started = time.perf_counter()
     stamp = outputs.stamped(library_study.QUICK_STAMP) if args.quick else contextlib.nullcontext()
-    with live_progress(("grid:", "round", "step length free")) as progress, stamp:
-        record = library_study.run_library(args.out, grid, settings, args.rounds, progress)
+    with live_progress(("starts", "grid:", "round", "step length free")) as progress, stamp:
+        families = paper.STUDY_FAMILIES if args.all_families else library_study.LIBRARY_FAMILIES
+        record = library_study.run_library(args.out, grid, settings, args.rounds, progress, families=families)
     points = record["points"]
     converged = sum(p["status"] == "converged" for p in points)
-    console.print(f"{grid.mass_class}, {grid.power_limit:g} W: {converged} of {len(points)} grid points converged")
+    console.print(f"{grid.mass_class}, {grid.power_limit:g} W: {converged} of {len(points)} grid points converged, "
+                  f"{sum(bool(p['refinement_passed']) for p in points)} kept on the 4x grid")
     for best in record["optimal_step"]:
         if best is not None:
             console.print(f"  {best['speed_mps']:g} m/s: optimal step {best['step_length_m']:.3f} m "
                           f"({best['status']}), J/L {best['cost_per_metre']:.4g}, "
-                          f"peak torque {max(best['torque_peak_Nm']):.2f} N m")
+                          f"peak torque {max(best['torque_peak_Nm']):.2f} N m"
+                          + _walk_words(best.get("drive_check")))
     console.print(f"wrote {args.out}/library.json, library.npz, library_map.png, library_drives.png in "
                   f"{time.perf_counter() - started:.0f} s")
     return 0
@@ -343,12 +357,7 @@ def run_top_speed(args) -> int:
             continue
         line = (f"  {entry['name']}: {entry['top_speed_mps']:.3f} m/s at L = {entry['step_length_m']:.3f} m "
                 f"({entry['status']}, kept on the 4x grid: {'yes' if entry['refinement_passed'] else 'no'})")
-        check = entry.get("drive_check")
-        if check is not None:
-            walk = check["walk_time_s"]
-            line += ("; catalogue check: " + ("passes" if check["passes_catalogue_check"] else "fails")
-                     + (", walks indefinitely" if walk is None else f", walks {walk / 60:.1f} min from 25 C"))
-        console.print(line)
+        console.print(line + _walk_words(entry.get("drive_check")))
     console.print(f"wrote {args.out}/top_speed.json, top_speed.png in {time.perf_counter() - started:.0f} s")
     return 0
 

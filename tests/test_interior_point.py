@@ -367,9 +367,12 @@ def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
     from biped_jax.studies import library
     solver = interior_gaits[0]
     grid = library.LibraryGrid("12kg", (0.45, 0.6), (0.15, 0.2), 20.0)
-    record = library.run_library(tmp_path, grid, solver=solver)
+    # one start family in the solver's own space: the gait tests' program (a batch of four)
+    family = library.LIBRARY_FAMILIES[0]
+    record = library.run_library(tmp_path, grid, solver=solver, families=(family,))
     points = record["points"]
     assert [p["status"] for p in points] == ["converged"] * 4, [p["status"] for p in points]
+    assert all(p["started"] == family.name and [s["family"] for s in p["starts"]] == [family.name] for p in points)
     for p in points:
         assert max(p["power_peak_W"]) <= 20.0 * (1 + 1e-6) and max(p["torque_peak_Nm"]) <= 20.0 * (1 + 1e-6)
         assert all(rms <= peak for rms, peak in zip(p["torque_rms_Nm"], p["torque_peak_Nm"]))
@@ -382,6 +385,7 @@ def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
     arrays = outputs.read_npz(tmp_path / "library.npz")
     np.testing.assert_allclose(arrays["cost_per_metre"].ravel(), [p["cost_per_metre"] for p in points])
     np.testing.assert_allclose(arrays["optimal_step_length_m"], [b["step_length_m"] for b in record["optimal_step"]])
+    assert np.all(arrays["family_index"] == 0)
     assert (tmp_path / "library_map.png").stat().st_size > 0 and (tmp_path / "library_drives.png").stat().st_size > 0
     converged = np.array([True, False, False, True])
     assert library._nearest_converged(1, converged, (2, 2)) == 0

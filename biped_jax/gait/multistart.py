@@ -39,9 +39,9 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait_probl
     (:func:`gait_problem.project`) and solved there, all models in one batch (the study's way: the coarse
     stage is cheap). Without it the starts are solved in the fine space directly (measured on M2:
     every family solved in the 4-span space reaches the same J = 4.62 family, which the fine space
-    then keeps, so the coarse stage narrows the search). Each returned solution
-    lists every start's outcome in ``starts``. No start comes from anywhere but the product's own
-    heuristics. ``progress(stage, iteration, row)`` follows the solver of each stage ("starts", then
+    then keeps, so the coarse stage narrows the search). Each returned solution lists every start's
+    outcome in ``starts`` ("kept": the one carried on). No start comes from anywhere but the product's
+    own heuristics. ``progress(stage, iteration, row)`` follows the solver of each stage ("starts", then
     "refined space"); ``finished(stage, problems)`` is called when a stage has solved all its problems.
     """
     fine.check_batch(names, models)
@@ -59,10 +59,10 @@ def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait_probl
     chosen, spreads, best_solutions = [], [], []
     for b in range(len(models)):
         group = first[b * count:(b + 1) * count]
-        spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation}
-                        for f, s in zip(families, group)])
         feasible = [s for s in group if s.status in (nlp.CONVERGED, verdict.GRID_DEPENDENT)]
         best = min(feasible, key=lambda s: s.cost) if feasible else min(group, key=lambda s: s.max_violation)
+        spreads.append([{"family": f.name, "status": s.status, "cost": s.cost, "max_violation": s.max_violation,
+                         "kept": s is best} for f, s in zip(families, group)])
         best_solutions.append(best)
         if coarse is not None:
             chosen.append(gait_problem.project(best.x, coarse.settings, fine.settings, best.trajectory))

@@ -13,6 +13,24 @@ from biped_jax.report import interrupts
 console = Console(stderr=True)
 
 
+def iteration_progress(say, label: str, max_iterations: int):
+    """A batched solver's progress callback ``(iteration, row)`` telling ``say`` the iteration, how many of
+    the batch's problems have finished (``row["done"]``) and at most how long the stage has left (its
+    iterations so far timed, up to ``max_iterations``; each solve of a continuation timed anew)."""
+    clock = {"start": time.perf_counter(), "last": -1}
+
+    def report(i, row):
+        if i < clock["last"]:  # a new solve (a continuation's next stage): its own clock
+            clock["start"] = time.perf_counter()
+        clock["last"] = i
+        elapsed = time.perf_counter() - clock["start"]
+        left = elapsed / max(i, 1) * max(max_iterations - i, 0)
+        done = row["done"]
+        say(f"{label}: interior-point iteration {i}, {int(sum(bool(d) for d in done))} of {len(done)} finished, "
+            f"{elapsed:.0f} s, at most {left:.0f} s left")
+    return report
+
+
 @contextlib.contextmanager
 def live_progress(quiet_prefixes: tuple[str, ...] = ()):
     """A live display: a status line (the latest message, or the program being compiled, with the

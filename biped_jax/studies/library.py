@@ -2,7 +2,11 @@
 step lengths at a power limit, solved as batches of the interior point and continued along the grid,
 with the optimal step length at every speed and what the drives must deliver there.
 
-- Every grid point is first solved from the heuristic start, all points in one batch.
+- Every grid point is first solved from several heuristic start families (:data:`LIBRARY_FAMILIES`),
+  all points and families in one batch of the 4x coarser space, the cheapest per point carried into
+  the library's space (:func:`biped_jax.gait.multistart.solve_multistart`, the study's way): each point
+  records every start's outcome (its spread) and the family kept, so that the map shows where the
+  cheapest family changes.
 - A point whose solve did not converge on its grid is solved again from its nearest converged
   neighbour's gait (nearest in grid steps; the decision vector is in normalised time, so a neighbour's
   gait is a start of the same shape), for a few rounds: a continuation along the grid, each round in
@@ -13,7 +17,10 @@ with the optimal step length at every speed and what the drives must deliver the
   curve, all speeds in one batch.
 
 Every point reports J, J / L, t_f, the status and the refinement check, and per joint the peak and RMS
-torque, the peak speed and the peak power. Written: ``library.json``, ``library.npz`` (arrays over the
+torque, the peak speed and the peak power; on a catalogue drive (``LibraryGrid.drive``: the robot
+carries it, J is the motors' Joule energy, the gait keeps the supply voltage and the gears' limits)
+also the catalogue check per joint and how long it walks before a winding reaches its rated
+temperature (:mod:`biped_jax.drives.thermal`). Written: ``library.json``, ``library.npz`` (arrays over the
 grid), ``library_map.png`` (J / L over (speed, L) with the optimal-L curve) and ``library_drives.png``
 (peak torque and speed per joint against speed, at the optimal step length).
 """
@@ -27,12 +34,14 @@ from typing import Callable
 import numpy as np
 
 from biped_jax import checks
+from biped_jax.gait import multistart
 from biped_jax.gait import problem as gait_problem
 from biped_jax.gait import verdict
 from biped_jax.gait.report import JOINTS
 from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import interior_point, nlp
 from biped_jax.report import outputs
+from biped_jax.report.progress import iteration_progress
 from biped_jax.robots.planar_biped import ACTUATED_INDEX
 
 #: rad/s per rpm.
@@ -48,6 +57,9 @@ QUICK_SETTINGS = LIBRARY_SETTINGS
 #: iterations (a point that needs more is re-solved from a converged neighbour, a better start than
 #: more iterations from the heuristic one).
 LIBRARY_OPTIONS = interior_point.InteriorPointOptions(max_iterations=150, quorum=0.9, patience=60)
+#: The start families every grid point is solved from: the quick study's three (one straight-knee
+#: family, two flexed-impact ones: the cheapest family changes with the step length).
+LIBRARY_FAMILIES = (gait_problem.START_FAMILIES[1], gait_problem.IMPACT_FAMILIES[0], gait_problem.IMPACT_FAMILIES[1])
 QUICK_SPEEDS, QUICK_STEP_LENGTHS = (0.3, 0.5, 0.7), (0.1, 0.2, 0.3)
 QUICK_STAMP = "QUICK LOOK (biped-jax library --quick): 3 speeds x 3 step lengths; a coarse grid of speeds and lengths"
 
@@ -59,12 +71,16 @@ class LibraryGrid:
     Attributes:
       mass_class: "12kg" or "18kg". speeds: walking speeds, m/s, increasing. step_lengths: step lengths,
         m, increasing. power_limit: the bound on every joint's |qdot u|, W.
+      drive: None (ideal drives, the paper's problem) or (motor, gearhead) catalogue names of the drive
+        at every joint. supply_voltage: its supply, V (None: the catalogue's).
     """
 
     mass_class: str = "12kg"
     speeds: tuple = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
     step_lengths: tuple = (0.1, 0.15, 0.2, 0.25, 0.3)
     power_limit: float = 20.0
+    drive: tuple | None = None
+    supply_voltage: float | None = None
 
     def __post_init__(self):
         for name in ("speeds", "step_lengths"):
@@ -74,7 +90,9 @@ class LibraryGrid:
             numbers = np.asarray(values, dtype=float)
             if not np.all(np.diff(numbers) > 0):
                 raise ValueError(f"{name} must increase, got {list(values)}")
-        self.models()  # names a bad speed, length, limit or mass class
+        if self.drive is None and self.supply_voltage is not None:
+            raise ValueError(f"supply_voltage {self.supply_voltage!r} applies to a drive: give a drive")
+        self.models()  # names a bad speed, length, limit, mass class or part
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -82,7 +100,12 @@ class LibraryGrid:
 
     def models(self) -> list[gait_problem.GaitModel]:
         """The grid's problems, speed-major ((speed i, length j) at i * len(step_lengths) + j)."""
-        return [gait_problem.gait_model(self.mass_class, float(v), float(self.power_limit), float(length))
+        if self.drive is None:
+            return [gait_problem.gait_model(self.mass_class, float(v), float(self.power_limit), float(length))
+                    for v in self.speeds for length in self.step_lengths]
+        from biped_jax import codesign
+        design = codesign.catalogue_design(*self.drive, self.mass_class, supply_voltage=self.supply_voltage)
+        return [codesign.design_gait_model(design, float(v), float(self.power_limit), float(length))
                 for v in self.speeds for length in self.step_lengths]
 
     def names(self) -> list[str]:
@@ -100,21 +123,23 @@ def _nearest_converged(index: int, converged: np.ndarray, shape: tuple[int, int]
     return int(np.argmin(distance))
 
 
-def _iterations(say, label: str):
-    return lambda i, row: say(f"{label}: interior-point iteration {i}, {int(np.sum(row['done']))} of "
-                              f"{row['done'].size} finished")
-
-
 def solve_grid(solver: GaitSolver, grid: LibraryGrid, rounds: int = 3,
-               say: Callable[[str], None] | None = None) -> tuple[list[GaitSolution], list[str]]:
-    """The grid's optimal gaits (speed-major) and where each started ("heuristic", or "from <name>" of
-    the neighbour it was continued from): every point from the heuristic start in one batch, then
-    ``rounds`` rounds re-solving the points that did not converge from their nearest converged
-    neighbour's gait."""
+               say: Callable[[str], None] | None = None, families=LIBRARY_FAMILIES,
+               coarse: GaitSolver | None = None) -> tuple[list[GaitSolution], list[str]]:
+    """The grid's optimal gaits (speed-major) and where each started ("<family>", the start family kept,
+    or "from <name>" of the neighbour it was continued from): every point from every start family of
+    ``families`` in one batch (in ``coarse``'s space, the cheapest carried into ``solver``'s;
+    :func:`~biped_jax.gait.multistart.solve_multistart`: each solution's ``starts`` lists every
+    family's outcome), then ``rounds`` rounds re-solving the points that did not converge from their
+    nearest converged neighbour's gait."""
     say = say or (lambda message: None)
     names, models = grid.names(), grid.models()
-    solutions = solver.solve(names, models, progress=_iterations(say, "grid"))
-    started = ["heuristic"] * len(names)
+    first = coarse or solver
+    stage = {"starts": iteration_progress(say, f"starts ({len(families)} families)", first.options.max_iterations),
+             "refined space": iteration_progress(say, "grid", solver.options.max_iterations)}
+    solutions = multistart.solve_multistart(solver, names, models, families, coarse,
+                                            progress=lambda part, i, row: stage[part](i, row))
+    started = [next(start["family"] for start in s.starts if start["kept"]) for s in solutions]
     for k in range(rounds):
         converged = np.array([s.status == nlp.CONVERGED for s in solutions])
         say(f"round {k}: {int(converged.sum())} of {converged.size} points converged")
@@ -128,9 +153,11 @@ def solve_grid(solver: GaitSolver, grid: LibraryGrid, rounds: int = 3,
         padded = [retry[i % len(retry)] for i in range(len(names))]
         again = solver.solve([names[b] for b in padded], [models[b] for b in padded],
                              x0=np.stack([solutions[sources[b]].x for b in padded]),
-                             progress=_iterations(say, f"round {k + 1}, {len(retry)} points from neighbours"))
+                             progress=iteration_progress(say, f"round {k + 1}, {len(retry)} points from neighbours",
+                                                  solver.options.max_iterations))
         for b, solution in zip(retry, again):
             if solution.status == nlp.CONVERGED or solution.max_violation < solutions[b].max_violation:
+                solution.starts = solutions[b].starts
                 solutions[b], started[b] = solution, f"from {names[sources[b]]}"
     return solutions, started
 
@@ -155,7 +182,8 @@ def optimal_step_lengths(solver: GaitSolver, grid: LibraryGrid, solutions: list[
     free = solver.solve_step_length([f"{solutions[p].speed_mps:g} m/s, L free" for p in chosen],
                                     [models[p] for p in chosen], bounds,
                                     x0=np.stack([solutions[p].x for p in chosen]),
-                                    progress=say and _iterations(say, "step length free"))
+                                    progress=iteration_progress(say or (lambda message: None), "step length free",
+                                                         solver.options.max_iterations))
     found = iter(free)
     optimal = []
     for p in picks:
@@ -182,61 +210,104 @@ def demand(solution: GaitSolution) -> dict:
             "power_peak_W": np.abs(speed * torque).max(axis=0).tolist()}
 
 
-def point_record(solution: GaitSolution, started: str) -> dict:
-    return {"speed_mps": solution.speed_mps, "step_length_m": solution.step_length_m, "status": solution.status,
-            "cost": solution.cost, "cost_per_metre": solution.energy_per_metre, "t_f": solution.step_time_s,
-            "max_violation": solution.max_violation, "refinement_passed": solution.refinement.get("passed"),
-            "refined_cost": solution.refinement.get("cost"), "started": started, **demand(solution)}
+def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None = None) -> dict:
+    """What ``library.json`` holds of one gait: its numbers, where it started, every start's outcome where
+    it was started afresh, and on a drive (``grid.drive``) the catalogue check and the walk time."""
+    record = {"speed_mps": solution.speed_mps, "step_length_m": solution.step_length_m, "status": solution.status,
+              "cost": solution.cost, "cost_per_metre": solution.energy_per_metre, "t_f": solution.step_time_s,
+              "max_violation": solution.max_violation, "refinement_passed": solution.refinement.get("passed"),
+              "refined_cost": solution.refinement.get("cost"), "started": started, "starts": solution.starts,
+              **demand(solution)}
+    if grid is not None and grid.drive is not None:
+        from biped_jax.drives import model as drive_model
+        from biped_jax.drives import selection
+        voltage = drive_model.load_catalogue().supply_voltage if grid.supply_voltage is None else grid.supply_voltage
+        joints = selection.joint_verdicts((grid.drive[0],) * 4, (grid.drive[1],) * 4, solution, voltage,
+                                          drive_model.load_catalogue())
+        times = [j["walk_time_s"] for j in joints if j["walk_time_s"] is not None]
+        record["drive_check"] = {"passes_catalogue_check": all(j["feasible"] for j in joints),
+                                 "reasons": sorted({j["reason"] for j in joints if not j["feasible"]}),
+                                 "walk_time_s": min(times) if times else None}
+    return record
+
+
+def library_solvers(grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS
+                    ) -> tuple[GaitSolver, GaitSolver]:
+    """(the library's solver in ``settings``' space, the starts' in the 4x coarser one), the drives' gear
+    limits held where ``grid`` has a drive."""
+    if grid.drive is not None:
+        settings = dataclasses.replace(settings, drive_limits=True)
+    from biped_jax.studies import paper
+    fine = GaitSolver(settings, LIBRARY_OPTIONS, mass_class_template=grid.mass_class)
+    # the starts only choose a family: no refinement check, as the study's coarse stage
+    coarse = GaitSolver(multistart.coarse_settings(settings), paper.IP_OPTIONS, mass_class_template=grid.mass_class,
+                        check_refinement=False)
+    return fine, coarse
 
 
 def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS,
-                rounds: int = 3, say: Callable[[str], None] | None = None, solver: GaitSolver | None = None) -> dict:
-    """Solves the library of ``grid`` in ``settings``' space (or with ``solver``, sharing its compiled
-    programs) and writes its files into ``out``; returns the library record (what ``library.json``
+                rounds: int = 3, say: Callable[[str], None] | None = None, solver: GaitSolver | None = None,
+                families=LIBRARY_FAMILIES) -> dict:
+    """Solves the library of ``grid`` in ``settings``' space from every start family of ``families``
+    (:func:`library_solvers`; or with ``solver``, sharing its compiled programs, the starts solved in its
+    own space) and writes its files into ``out``; returns the library record (what ``library.json``
     holds)."""
     checks.integer_in("rounds", rounds, 0, 20)
     say = say or (lambda message: None)
-    solver = solver or GaitSolver(settings, LIBRARY_OPTIONS, mass_class_template=grid.mass_class)
+    solver, coarse = (solver, None) if solver is not None else library_solvers(grid, settings)
     settings = solver.settings
     out.mkdir(parents=True, exist_ok=True)
     say(f"{grid.mass_class}, {grid.power_limit:g} W: {grid.shape[0]} speeds x {grid.shape[1]} step lengths "
-        f"in one batch ({settings.spans} knot spans)")
-    solutions, started = solve_grid(solver, grid, rounds, say)
+        f"x {len(families)} start families in one batch ({settings.spans} knot spans)")
+    solutions, started = solve_grid(solver, grid, rounds, say, families, coarse)
     say("the optimal step length at every speed")
     optimal = optimal_step_lengths(solver, grid, solutions, say)
-    record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit, "speeds_mps": list(grid.speeds),
+    record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit,
+              "drive": None if grid.drive is None else list(grid.drive), "speeds_mps": list(grid.speeds),
               "step_lengths_m": list(grid.step_lengths), "settings": dataclasses.asdict(settings),
-              "joints": list(JOINTS), "points": [point_record(s, w) for s, w in zip(solutions, started)],
+              "families": [f.name for f in families],
+              "joints": list(JOINTS), "points": [point_record(s, w, grid) for s, w in zip(solutions, started)],
               "optimal_step": [None if s is None else point_record(
-                  s, "grid point" if any(s is g for g in solutions) else "free step length") for s in optimal]}
+                  s, "grid point" if any(s is g for g in solutions) else "free step length", grid)
+                  for s in optimal]}
     outputs.write_json(out / "library.json", record)
     shape = grid.shape
     arrays = {"speeds_mps": np.asarray(grid.speeds), "step_lengths_m": np.asarray(grid.step_lengths)}
     for key in ("cost", "cost_per_metre", "t_f"):
         arrays[key] = np.array([p[key] for p in record["points"]]).reshape(shape)
     arrays["converged"] = np.array([p["status"] == nlp.CONVERGED for p in record["points"]]).reshape(shape)
+    # the family each point's gait started from (-1: continued from a neighbour)
+    arrays["family_index"] = np.array([record["families"].index(p["started"]) if p["started"] in record["families"]
+                                       else -1 for p in record["points"]]).reshape(shape)
     for key in ("torque_peak_Nm", "torque_rms_Nm", "speed_peak_rpm", "power_peak_W"):
         arrays[key] = np.array([p[key] for p in record["points"]]).reshape(*shape, 4)
     arrays["optimal_step_length_m"] = np.array([np.nan if s is None else s.step_length_m for s in optimal])
     arrays["optimal_cost_per_metre"] = np.array([np.nan if s is None else s.energy_per_metre for s in optimal])
     outputs.save_npz(out / "library.npz", **arrays)
-    plot_map(arrays, grid, out / "library_map.png")
+    plot_map(arrays, grid, out / "library_map.png", record["families"])
     plot_drives(record, out / "library_drives.png")
     return record
 
 
-def plot_map(arrays: dict, grid: LibraryGrid, path: Path) -> None:
-    """J / L over (speed, step length), points that did not converge left blank, with the optimal-L curve."""
+def plot_map(arrays: dict, grid: LibraryGrid, path: Path, families: list[str]) -> None:
+    """J / L over (speed, step length), points that did not converge left blank, with the optimal-L curve
+    and each point's start family (``families``, indexed by ``arrays["family_index"]``)."""
     plt = outputs.pyplot()
     figure, axis = plt.subplots(figsize=(7, 5), constrained_layout=True)
     value = np.where(arrays["converged"], arrays["cost_per_metre"], np.nan)
     mesh = axis.pcolormesh(arrays["speeds_mps"], arrays["step_lengths_m"], np.log10(value.T), shading="nearest")
     figure.colorbar(mesh, ax=axis, label="log10 J / L  [N^2 m s]")
     axis.plot(arrays["speeds_mps"], arrays["optimal_step_length_m"], "w-o", label="optimal step length")
+    # the start family each point's gait came from: where it changes, so does the cheapest gait family
+    v, length = np.meshgrid(arrays["speeds_mps"], arrays["step_lengths_m"], indexing="ij")
+    for k, (family, marker) in enumerate(zip(families, "sD^v<>ph*")):
+        kept = arrays["family_index"] == k
+        if kept.any():
+            axis.scatter(v[kept], length[kept], marker=marker, facecolors="none", edgecolors="k", s=40, label=family)
     axis.set_xlabel("speed [m/s]")
     axis.set_ylabel("step length [m]")
     axis.set_title(f"{grid.mass_class}, M_W = {grid.power_limit:g} W: energy per metre")
-    axis.legend(loc="upper left")
+    axis.legend(loc="upper left", fontsize=8)
     outputs.save_figure(figure, path)
     plt.close(figure)
 

@@ -29,6 +29,7 @@ from biped_jax.gait import problem as gait_problem
 from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
+from biped_jax.report.progress import iteration_progress
 from biped_jax.studies.library import LIBRARY_OPTIONS, demand
 
 #: The space of the top-speed study: the library's (16 knot spans, 4 Runge-Kutta steps each), with the
@@ -90,11 +91,6 @@ def problems(mass_classes=MASS_CLASSES, power_limits=POWER_LIMITS, drives=DRIVES
             + [TopSpeedProblem(m, drive=tuple(d), supply_voltage=supply_voltage) for m in mass_classes for d in drives])
 
 
-def _iterations(say: Callable[[str], None], label: str):
-    return lambda i, row: say(f"{label}: interior-point iteration {i}, {int(np.sum(row['done']))} of "
-                              f"{row['done'].size} finished")
-
-
 def _drive_check(problem: TopSpeedProblem, model: gait_problem.GaitModel, solution: GaitSolution) -> dict:
     """The catalogue check per joint of the problem's drive on its fastest gait, and how long it walks."""
     from biped_jax.drives import model as drive_model
@@ -135,14 +131,15 @@ def solve_top_speeds(solver: GaitSolver, chosen: list[TopSpeedProblem], bounds: 
     gait_problem.check_step_bounds(bounds, [START_STEP_LENGTH], chosen[0].mass_class)
     names, models = [p.name for p in chosen], [p.model() for p in chosen]
     say(f"{len(chosen)} problems at {START_SPEED:g} m/s in one batch ({solver.settings.spans} knot spans)")
-    starts = solver.solve(names, models, progress=_iterations(say, "start"))
+    starts = solver.solve(names, models, progress=iteration_progress(say, "start", solver.options.max_iterations))
     usable = [b for b, s in enumerate(starts) if s.status == nlp.CONVERGED]
     if not usable:
         return starts, {}
     say(f"the fastest gait of {len(usable)} problems (step length in [{bounds[0]:g}, {bounds[1]:g}] m)")
     fastest = solver.fastest_gait([names[b] for b in usable], [models[b] for b in usable],
                                   np.stack([starts[b].x for b in usable]), bounds,
-                                  progress=_iterations(say, "fastest gait"), tightening=tightening)
+                                  progress=iteration_progress(say, "fastest gait", solver.options.max_iterations),
+                                  tightening=tightening)
     return starts, dict(zip(usable, fastest))
 
 
