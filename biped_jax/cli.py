@@ -167,8 +167,8 @@ def _parser() -> argparse.ArgumentParser:
     library = subcommands.add_parser("library", help="optimal gaits over a grid of speeds and step lengths, the "
                                      "optimal step length at every speed and the drives' demand (figures, JSON, npz)")
     _out_argument(library)
-    _problem_arguments(library, speed="walking speeds, m/s, increasing (default 0.2 0.3 0.4 0.5 0.6 0.7)",
-                       step_length="step lengths, m, increasing (default 0.1 0.15 0.2 0.25 0.3)", grid=True)
+    _problem_arguments(library, speed="walking speeds, m/s, increasing (default 0.3 0.45 0.6 0.75)",
+                       step_length="step lengths, m, increasing (default 0.1 0.175 0.25)", grid=True)
     library.add_argument("--drive", type=_drive, default=None, metavar="MOTOR+GEARHEAD",
                          help="a catalogue drive at every joint, e.g. RE25-42V+GP32A-66.22 (default: ideal drives, the "
                               "paper's problem): the robot carries it, J is the motors' Joule energy, the gaits keep "

@@ -318,6 +318,11 @@ def run_library(args) -> int:
                           f"({best['status']}), J/L {best['cost_per_metre']:.4g}, "
                           f"peak torque {max(best['torque_peak_Nm']):.2f} N m"
                           + _walk_words(best.get("drive_check")))
+    lasting = record.get("indefinite_walk")
+    if lasting is not None:
+        console.print(f"on {' + '.join(grid.drive)}: walks indefinitely (the thermal check) at up to "
+                      + ("no speed of the grid" if lasting["up_to_mps"] is None else f"{lasting['up_to_mps']:g} m/s")
+                      + ("" if lasting["not_at_mps"] is None else f", not at {lasting['not_at_mps']:g} m/s"))
     console.print(f"wrote {args.out}/library.json, library.npz, library_map.png, library_drives.png in "
                   f"{time.perf_counter() - started:.0f} s")
     return 0

@@ -392,6 +392,12 @@ def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
     assert library._nearest_converged(2, converged, (2, 2)) == 0
     assert library._nearest_converged(2, np.array([False, False, False, True]), (2, 2)) == 3
     assert library._nearest_converged(0, np.zeros(4, bool), (2, 2)) is None
+    # on a drive: the fastest speed whose optimal step passes the thermal check, bracketed by the grid
+    rows = [{"speed_mps": v, "status": status, "drive_check": {"walk_time_s": walk}} for v, status, walk in
+            ((0.2, "converged", None), (0.3, "converged", None), (0.4, "converged", 300.0),
+             (0.5, "iteration limit", None), (0.6, "converged", 60.0))]
+    assert library.indefinite_walk(rows + [None]) == {"speeds_mps": [0.2, 0.3], "up_to_mps": 0.3, "not_at_mps": 0.4}
+    assert library.indefinite_walk(rows[2:]) == {"speeds_mps": [], "up_to_mps": None, "not_at_mps": 0.4}
 
 
 def test_the_fastest_gaits_are_kkt_points_of_max_speed(interior_gaits, tmp_path):

@@ -57,6 +57,10 @@ QUICK_SETTINGS = LIBRARY_SETTINGS
 #: iterations (a point that needs more is re-solved from a converged neighbour, a better start than
 #: more iterations from the heuristic one).
 LIBRARY_OPTIONS = interior_point.InteriorPointOptions(max_iterations=150, quorum=0.9, patience=60)
+#: The starts' interior point in the 4x coarser space (the study's 80 iterations): once 90 % of the
+#: batch has finished, 20 more; a start still running then ends "iteration limit" and another family's
+#: start is kept. Without it the default grid's 36 starts ran past 10 minutes on 2 cores, held by a few.
+COARSE_OPTIONS = interior_point.InteriorPointOptions(max_iterations=80, quorum=0.9, patience=20)
 #: The start families every grid point is solved from: the quick study's three (one straight-knee
 #: family, two flexed-impact ones: the cheapest family changes with the step length).
 LIBRARY_FAMILIES = (gait_problem.START_FAMILIES[1], gait_problem.IMPACT_FAMILIES[0], gait_problem.IMPACT_FAMILIES[1])
@@ -76,8 +80,8 @@ class LibraryGrid:
     """
 
     mass_class: str = "12kg"
-    speeds: tuple = (0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
-    step_lengths: tuple = (0.1, 0.15, 0.2, 0.25, 0.3)
+    speeds: tuple = (0.3, 0.45, 0.6, 0.75)
+    step_lengths: tuple = (0.1, 0.175, 0.25)
     power_limit: float = 20.0
     drive: tuple | None = None
     supply_voltage: float | None = None
@@ -231,16 +235,28 @@ def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None 
     return record
 
 
+def indefinite_walk(optimal_step: list[dict | None]) -> dict:
+    """On a drive, the speeds (m/s) at which the robot walks indefinitely at the optimal step length (its
+    winding stays below its rated temperature: the thermal check passes), and the grid's bracket of the
+    fastest such speed: ``up_to_mps`` the fastest speed that does (None: none), ``not_at_mps`` the slowest
+    speed above it that does not (None: none)."""
+    rows = [p for p in optimal_step if p is not None and p["status"] == nlp.CONVERGED]
+    lasting = [p["speed_mps"] for p in rows if p["drive_check"]["walk_time_s"] is None]
+    up_to = max(lasting) if lasting else None
+    above = [p["speed_mps"] for p in rows if p["drive_check"]["walk_time_s"] is not None
+             and (up_to is None or p["speed_mps"] > up_to)]
+    return {"speeds_mps": lasting, "up_to_mps": up_to, "not_at_mps": min(above) if above else None}
+
+
 def library_solvers(grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS
                     ) -> tuple[GaitSolver, GaitSolver]:
     """(the library's solver in ``settings``' space, the starts' in the 4x coarser one), the drives' gear
     limits held where ``grid`` has a drive."""
     if grid.drive is not None:
         settings = dataclasses.replace(settings, drive_limits=True)
-    from biped_jax.studies import paper
     fine = GaitSolver(settings, LIBRARY_OPTIONS, mass_class_template=grid.mass_class)
     # the starts only choose a family: no refinement check, as the study's coarse stage
-    coarse = GaitSolver(multistart.coarse_settings(settings), paper.IP_OPTIONS, mass_class_template=grid.mass_class,
+    coarse = GaitSolver(multistart.coarse_settings(settings), COARSE_OPTIONS, mass_class_template=grid.mass_class,
                         check_refinement=False)
     return fine, coarse
 
@@ -270,6 +286,8 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
               "optimal_step": [None if s is None else point_record(
                   s, "grid point" if any(s is g for g in solutions) else "free step length", grid)
                   for s in optimal]}
+    if grid.drive is not None:
+        record["indefinite_walk"] = indefinite_walk(record["optimal_step"])
     outputs.write_json(out / "library.json", record)
     shape = grid.shape
     arrays = {"speeds_mps": np.asarray(grid.speeds), "step_lengths_m": np.asarray(grid.step_lengths)}

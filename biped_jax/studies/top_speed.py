@@ -3,7 +3,8 @@ power limits, the curve v_max(M_W), and on catalogue drives (motor, gearhead, su
 model in the loop), all problems in one batch.
 
 - Every problem is first solved at a slow start (:data:`START_SPEED`, :data:`START_STEP_LENGTH`) from the
-  heuristic gait, all in one batch.
+  heuristic gait, all in one batch; a start that converged on its grid serves (the fastest gait gets
+  its own refinement check).
 - From each converged start :meth:`~biped_jax.gait.solver.GaitSolver.fastest_gait` maximises the speed
   with the step length free within the bounds: a converged optimisation (a KKT point of max v), not a
   bisection; the power held between the grid's samples by its tightening rounds.
@@ -26,6 +27,7 @@ from typing import Callable
 import numpy as np
 
 from biped_jax.gait import problem as gait_problem
+from biped_jax.gait import verdict
 from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import nlp
 from biped_jax.report import outputs
@@ -113,6 +115,7 @@ def record_of(problem: TopSpeedProblem, start: GaitSolution, fastest: GaitSoluti
         entry.update({"top_speed_mps": fastest.speed_mps, "step_length_m": fastest.step_length_m,
                       "t_f": fastest.step_time_s, "cost": fastest.cost, "max_violation": fastest.max_violation,
                       "refinement_passed": fastest.refinement.get("passed"),
+                      "refinement_failed": fastest.refinement.get("failed"),
                       "solve_grid_power_limit_W": fastest.refinement.get("solve_grid_power_limit_W"),
                       **demand(fastest)})
     return entry
@@ -132,7 +135,9 @@ def solve_top_speeds(solver: GaitSolver, chosen: list[TopSpeedProblem], bounds: 
     names, models = [p.name for p in chosen], [p.model() for p in chosen]
     say(f"{len(chosen)} problems at {START_SPEED:g} m/s in one batch ({solver.settings.spans} knot spans)")
     starts = solver.solve(names, models, progress=iteration_progress(say, "start", solver.options.max_iterations))
-    usable = [b for b, s in enumerate(starts) if s.status == nlp.CONVERGED]
+    # a start converged on its grid serves, whether or not it passes the refinement check: the fastest
+    # gait is judged on its own
+    usable = [b for b, s in enumerate(starts) if s.status in (nlp.CONVERGED, verdict.GRID_DEPENDENT)]
     if not usable:
         return starts, {}
     say(f"the fastest gait of {len(usable)} problems (step length in [{bounds[0]:g}, {bounds[1]:g}] m)")
@@ -174,24 +179,29 @@ def write_top_speed(out: Path, solver: GaitSolver, chosen: list[TopSpeedProblem]
 
 
 def plot_top_speeds(record: dict, path: Path) -> None:
-    """v_max against M_W per mass class (converged fastest gaits), each drive's top speed at the peak
-    joint power its fastest gait needs."""
+    """v_max against M_W per mass class, each drive's top speed at the peak joint power its fastest gait
+    needs; filled markers for gaits converged and kept on the 4x grid, hollow for the others."""
     plt = outputs.pyplot()
     figure, axis = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
-    rows = [p for p in record["problems"] if p["top_speed_mps"] is not None and p["status"] == nlp.CONVERGED]
+    rows = [p for p in record["problems"] if p["top_speed_mps"] is not None]
     for mass_class in sorted({p["mass_class"] for p in record["problems"]}):
         curve = sorted((p["power_limit_W"], p["top_speed_mps"]) for p in rows
                        if p["mass_class"] == mass_class and p["drive"] is None)
-        line = axis.plot(*zip(*curve), "-o", label=f"{mass_class}, ideal drives")[0] if curve else None
+        line = axis.plot(*zip(*curve), "-", label=f"{mass_class}, ideal drives")[0] if curve else None
         color = None if line is None else line.get_color()
+        for p in (p for p in rows if p["mass_class"] == mass_class):
+            # filled: converged and kept on the 4x grid; hollow: not (its status in top_speed.json)
+            at = p["power_limit_W"] if p["drive"] is None else max(p["power_peak_W"])
+            color = axis.plot(at, p["top_speed_mps"], "o" if p["drive"] is None else "s", color=color,
+                              markerfacecolor=None if p["status"] == nlp.CONVERGED else "none")[0].get_color()
         for p in (p for p in rows if p["mass_class"] == mass_class and p["drive"] is not None):
-            axis.plot(max(p["power_peak_W"]), p["top_speed_mps"], "s", color=color, markerfacecolor="none")
             axis.annotate(p["drive"][1].replace("GP32A-", "") + ":1", (max(p["power_peak_W"]), p["top_speed_mps"]),
                           textcoords="offset points", xytext=(5, -3), fontsize=8, color=color)
     axis.set_xscale("log")
     axis.set_xlabel("power limit M_W per joint [W] (squares: a drive's peak joint power)")
     axis.set_ylabel("fastest walking speed [m/s]")
     axis.set_title("How fast it can walk (step length free)")
-    axis.legend(loc="lower right")
+    if axis.get_legend_handles_labels()[0]:
+        axis.legend(loc="lower right")
     outputs.save_figure(figure, path)
     plt.close(figure)
