@@ -1,0 +1,72 @@
+"""A gait library's points against the independent direct-collocation peer.
+
+Reads a ``biped-jax library`` output folder (``library.json``) and solves the same problems (mass class,
+speed, step length, power limit; ideal drives) with ``collocation_peer.solve`` (CasADi + IPOPT,
+Hermite-Simpson) on ``--segments`` segments and on twice as many (its own mesh check). Reported per
+point: our J on the library's grid and on the 4x finer one, our status and refinement check, the peer's
+J on both meshes and the gap (ours on the 4x grid / the peer's on its finer mesh - 1, in %). Needs the
+``bench`` extra (casadi).
+
+    biped-jax library --out OUT
+    python benchmarks/library_vs_collocation.py OUT          # every converged point
+    python benchmarks/library_vs_collocation.py OUT --points 6
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from _results import save_results
+
+
+def chosen_points(points: list[dict], count: int | None) -> list[dict]:
+    """The points to check: all, or ``count`` spread over the grid, the steepest corner (largest J / L)
+    always among them."""
+    if count is None or count >= len(points):
+        return points
+    steepest = max(points, key=lambda p: p["cost_per_metre"])
+    step = len(points) / count
+    picked = [points[int(k * step)] for k in range(count)]
+    return picked if steepest in picked else picked[:-1] + [steepest]
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("library", type=Path, help="a biped-jax library output folder")
+    parser.add_argument("--points", type=int, default=None, help="how many points (default: all)")
+    parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
+    parser.add_argument("--name", default="library_vs_collocation")
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
+    args = parser.parse_args()
+    from collocation_peer import PeerProblem, solve
+
+    from biped_jax.robots.specs import PLANAR_SPECS
+    record = json.loads((args.library / "library.json").read_text())
+    if record.get("drive") is not None:
+        parser.error("the peer has ideal drives only: give a library without --drive")
+    spec = PLANAR_SPECS[record["mass_class"]]
+    rows = []
+    for point in chosen_points(record["points"], args.points):
+        problem = PeerProblem(spec, point["speed_mps"], record["power_limit_W"], point["step_length_m"])
+        coarse, fine = solve(problem, args.segments), solve(problem, 2 * args.segments)
+        ours = point["refined_cost"]
+        gap = 100 * (ours / fine["cost"] - 1)
+        rows.append({"speed_mps": point["speed_mps"], "step_length_m": point["step_length_m"],
+                     "ours": {"cost": point["cost"], "cost_refined": ours, "status": point["status"],
+                              "refinement_passed": point["refinement_passed"], "started": point["started"]},
+                     "peer": {"cost": coarse["cost"], "status": coarse["status"], "segments": args.segments,
+                              "cost_finer_mesh": fine["cost"], "status_finer_mesh": fine["status"]},
+                     "gap_percent": gap})
+        print(f"{point['speed_mps']:5.2f} m/s, L {point['step_length_m']:5.3f} m: ours J {point['cost']:8.4f} "
+              f"(4x grid {ours:8.4f}, {point['status']})  peer J {coarse['cost']:8.4f} / {fine['cost']:8.4f} "
+              f"({coarse['status']} / {fine['status']}, {args.segments} / {2 * args.segments} segments)  "
+              f"gap {gap:+6.2f} %", flush=True)
+    save_results(args.name, {"library": str(args.library), "mass_class": record["mass_class"],
+                             "power_limit_W": record["power_limit_W"], "settings": record["settings"],
+                             "segments": args.segments}, rows, args.out)
+
+
+if __name__ == "__main__":
+    main()
