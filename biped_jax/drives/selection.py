@@ -162,6 +162,20 @@ def joint_verdicts(motors, heads, solution, supply_voltage: float, catalogue: dr
     return verdicts
 
 
+def drive_summary(motor: str, gearhead: str, solution, supply_voltage: float,
+                  catalogue: drive_model.Catalogue | None = None) -> dict:
+    """One catalogue motor and gearhead at every joint checked on a solved gait (:func:`joint_verdicts`):
+    {"passes_catalogue_check", "passes_without_thermal", "reasons" (the failed joints' first failed
+    checks), "walk_time_s" (the joint that heats most; None: every joint walks indefinitely), "joints"}."""
+    joints = joint_verdicts((motor,) * 4, (gearhead,) * 4, solution, supply_voltage,
+                            catalogue or drive_model.load_catalogue())
+    times = [j["walk_time_s"] for j in joints if j["walk_time_s"] is not None]
+    return {"passes_catalogue_check": all(j["feasible"] for j in joints),
+            "passes_without_thermal": all(j["feasible_without_thermal"] for j in joints),
+            "reasons": sorted({j["reason"] for j in joints if not j["feasible"]}),
+            "walk_time_s": min(times) if times else None, "joints": joints}
+
+
 def select_drive(workspaces: list[JointWorkspace], catalogue: drive_model.Catalogue,
                  window: float = IMPACT_WINDOW) -> tuple[dict | None, list[dict]]:
     """Every winding x ratio checked on all given gaits (all must pass); feasible ones ranked by Joule

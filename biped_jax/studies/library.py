@@ -225,13 +225,10 @@ def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None 
     if grid is not None and grid.drive is not None:
         from biped_jax.drives import model as drive_model
         from biped_jax.drives import selection
-        voltage = drive_model.load_catalogue().supply_voltage if grid.supply_voltage is None else grid.supply_voltage
-        joints = selection.joint_verdicts((grid.drive[0],) * 4, (grid.drive[1],) * 4, solution, voltage,
-                                          drive_model.load_catalogue())
-        times = [j["walk_time_s"] for j in joints if j["walk_time_s"] is not None]
-        record["drive_check"] = {"passes_catalogue_check": all(j["feasible"] for j in joints),
-                                 "reasons": sorted({j["reason"] for j in joints if not j["feasible"]}),
-                                 "walk_time_s": min(times) if times else None}
+        catalogue = drive_model.load_catalogue()
+        voltage = catalogue.supply_voltage if grid.supply_voltage is None else grid.supply_voltage
+        summary = selection.drive_summary(*grid.drive, solution, voltage, catalogue)
+        record["drive_check"] = {k: summary[k] for k in ("passes_catalogue_check", "reasons", "walk_time_s")}
     return record
 
 

@@ -95,14 +95,9 @@ def problems(mass_classes=MASS_CLASSES, power_limits=POWER_LIMITS, drives=DRIVES
 
 def _drive_check(problem: TopSpeedProblem, model: gait_problem.GaitModel, solution: GaitSolution) -> dict:
     """The catalogue check per joint of the problem's drive on its fastest gait, and how long it walks."""
-    from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection
-    joints = selection.joint_verdicts((problem.drive[0],) * 4, (problem.drive[1],) * 4, solution,
-                                      float(model.drives.supply_voltage), drive_model.load_catalogue())
-    times = [j["walk_time_s"] for j in joints if j["walk_time_s"] is not None]
-    return {"passes_catalogue_check": all(j["feasible"] for j in joints),
-            "passes_without_thermal": all(j["feasible_without_thermal"] for j in joints),
-            "walk_time_s": min(times) if times else None, "joints": joints}
+    summary = selection.drive_summary(*problem.drive, solution, float(model.drives.supply_voltage))
+    return {k: summary[k] for k in ("passes_catalogue_check", "passes_without_thermal", "walk_time_s", "joints")}
 
 
 def record_of(problem: TopSpeedProblem, start: GaitSolution, fastest: GaitSolution | None) -> dict:
