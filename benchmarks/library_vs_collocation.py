@@ -3,9 +3,10 @@
 Reads a ``biped-jax library`` output folder (``library.json``) and solves the same problems (mass class,
 speed, step length, power limit; ideal drives) with ``collocation_peer.solve`` (CasADi + IPOPT,
 Hermite-Simpson) on ``--segments`` segments and on twice as many (its own mesh check). Reported per
-point: our J on the library's grid and on the 4x finer one, our status and refinement check, the peer's
-J on both meshes and the gap (ours on the 4x grid / the peer's on its finer mesh - 1, in %). Needs the
-``bench`` extra (casadi).
+point: our J on the library's grid and on the 4x finer one, our status, refinement check and space
+check (J in the library's space and in the finer one it reports, the estimated error), the peer's J on
+both meshes and the gap (ours on the 4x grid / the peer's on its finer mesh - 1, in %); and how many
+points are within 1 % of the peer (or below it). Needs the ``bench`` extra (casadi).
 
     biped-jax library --out OUT
     python benchmarks/library_vs_collocation.py OUT          # every converged point
@@ -55,17 +56,25 @@ def main():
         gap = 100 * (ours / fine["cost"] - 1)
         rows.append({"speed_mps": point["speed_mps"], "step_length_m": point["step_length_m"],
                      "ours": {"cost": point["cost"], "cost_refined": ours, "status": point["status"],
-                              "refinement_passed": point["refinement_passed"], "started": point["started"]},
+                              "refinement_passed": point["refinement_passed"], "started": point["started"],
+                              "space": point.get("space")},
                      "peer": {"cost": coarse["cost"], "status": coarse["status"], "segments": args.segments,
                               "cost_finer_mesh": fine["cost"], "status_finer_mesh": fine["status"]},
                      "gap_percent": gap})
-        print(f"{point['speed_mps']:5.2f} m/s, L {point['step_length_m']:5.3f} m: ours J {point['cost']:8.4f} "
+        space = point.get("space") or {}
+        spans = "" if space.get("error_estimate") is None else (
+            f" in {space['spans'][1]} spans (J {space['cost'][0]:.4f} in {space['spans'][0]}, "
+            f"est. error {100 * space['error_estimate']:.2f} %)")
+        print(f"{point['speed_mps']:5.2f} m/s, L {point['step_length_m']:5.3f} m: ours J {point['cost']:8.4f}{spans} "
               f"(4x grid {ours:8.4f}, {point['status']})  peer J {coarse['cost']:8.4f} / {fine['cost']:8.4f} "
               f"({coarse['status']} / {fine['status']}, {args.segments} / {2 * args.segments} segments)  "
               f"gap {gap:+6.2f} %", flush=True)
+    within = sum(row["gap_percent"] <= 1.0 for row in rows)
+    print(f"{within} of {len(rows)} points within 1 % of the peer (or below it)")
     save_results(args.name, {"library": str(args.library), "mass_class": record["mass_class"],
                              "power_limit_W": record["power_limit_W"], "settings": record["settings"],
-                             "segments": args.segments}, rows, args.out)
+                             "segments": args.segments, "space_check": record.get("space_check"),
+                             "within_1_percent": within}, rows, args.out)
 
 
 if __name__ == "__main__":

@@ -183,6 +183,10 @@ def _parser() -> argparse.ArgumentParser:
                          help="a first look: 3 speeds x 3 step lengths (overrides --speeds, --step-lengths and "
                               "the space); every file it writes says so")
     _space_arguments(library, substeps=4, spans=16)
+    library.add_argument("--space-factor", type=_integer("space-factor", 0, 8), default=3,
+                         help="the space check: every optimum solved again in this many times the knot spans and "
+                              "reported there, with the estimated error of the space (default 3: 48 spans; "
+                              "0: none; --quick: none)")
     fast = subcommands.add_parser("top-speed", help="how fast it can walk: the fastest gait under each power limit "
                                   "(v_max(M_W) per mass class) and on catalogue drives (figure, JSON)")
     _out_argument(fast)

@@ -276,6 +276,8 @@ def check_library(args):
     from biped_jax.studies import library as library_study
     configure_jax()
     try:
+        if args.space_factor == 1:
+            raise ValueError("--space-factor must be 0 (no space check) or at least 2, got 1")
         drive = {"drive": args.drive, "supply_voltage": args.supply_voltage}
         if args.quick:
             return (library_study.LibraryGrid(args.mass_class, library_study.QUICK_SPEEDS,
@@ -305,13 +307,18 @@ def run_library(args) -> int:
     grid, settings = getattr(args, "checked", None) or check_library(args)
     started = time.perf_counter()
     stamp = outputs.stamped(library_study.QUICK_STAMP) if args.quick else contextlib.nullcontext()
-    with live_progress(("starts", "grid:", "round", "step length free")) as progress, stamp:
+    with live_progress(("starts", "grid:", "round", "step length free", "space check")) as progress, stamp:
         families = paper.STUDY_FAMILIES if args.all_families else library_study.LIBRARY_FAMILIES
-        record = library_study.run_library(args.out, grid, settings, args.rounds, progress, families=families)
+        record = library_study.run_library(args.out, grid, settings, args.rounds, progress, families=families,
+                                           space_factor=0 if args.quick else args.space_factor)
     points = record["points"]
     converged = sum(p["status"] == "converged" for p in points)
     console.print(f"{grid.mass_class}, {grid.power_limit:g} W: {converged} of {len(points)} grid points converged, "
-                  f"{sum(bool(p['refinement_passed']) for p in points)} kept on the 4x grid")
+                  f"{sum(bool(p['refinement_passed']) for p in points)} kept on the 4x grid"
+                  + ("" if record["space_check"] is None else
+                     f", reported in {record['space_check']['spans']} knot spans, "
+                     f"{sum(bool((p['space'] or {}).get('passed')) for p in points)} with the space's estimated "
+                     f"error within {100 * record['space_check']['tolerance']:g} %"))
     for best in record["optimal_step"]:
         if best is not None:
             console.print(f"  {best['speed_mps']:g} m/s: optimal step {best['step_length_m']:.3f} m "

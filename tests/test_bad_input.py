@@ -55,6 +55,8 @@ CLI_ROWS = [
     (["library", "--drive", "RE25-42V"], "a drive is MOTOR+GEARHEAD"),
     (["library", "--drive", "RE25-42V+GP32A-7"], "unknown gearhead part 'GP32A-7'"),
     (["library", "--supply-voltage", "24"], "supply_voltage 24.0 applies to a drive"),
+    (["library", "--space-factor", "1"], "--space-factor must be 0 (no space check) or at least 2, got 1"),
+    (["library", "--space-factor", "9"], "--space-factor must be an integer in [0, 8], got '9'"),
     (["top-speed", "--drives", "RE99+GP32A-51"], "unknown motor part 'RE99'"),
     (["top-speed", "--power-limits", "-3"], "--power-limits must be a number in (0, 1e+06], got '-3'"),
     (["top-speed", "--power-limits", "--drives"], "--power-limits and --drives are both empty"),
@@ -323,6 +325,7 @@ def _solver_rows(solver, model):
     from biped_jax.dynamics import mjx_biped
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.multistart import solve_multistart
+    from biped_jax.gait.spaces import finer_solver, space_check
     from biped_jax.robots.design import design_layout
     n = solver.settings.size
     return [
@@ -367,6 +370,12 @@ def _solver_rows(solver, model):
          "1 names, 2 models"),
         ("multistart: no families", lambda: solve_multistart(solver, ["M2"], [model], families=()), ValueError,
          "families is empty"),
+        ("space check into no finer space", lambda: space_check(solver, solver, ["M2"], [model], [None]),
+         ValueError, "the finer space has 4 knot spans, the gaits' 4"),
+        ("space check, a tolerance of 2", lambda: space_check(solver, solver, ["M2"], [model], [None], tolerance=2.0),
+         ValueError, "tolerance must be a number in (0, 1]"),
+        ("space check, a factor of 1", lambda: finer_solver(solver, 1), ValueError,
+         "factor must be an integer in [2, 8], got 1"),
         ("gait_model under jit", lambda: jax.jit(lambda v: gait_problem.gait_model("12kg", v, 20.0).speed)(0.5),
          TypeError, "speed is traced"),
         ("solver settings", lambda: type(solver)(settings={"spans": 4}), TypeError, "settings must be a GaitSettings"),

@@ -292,6 +292,17 @@ def test_bad_settings_are_rejected(changes, message):
         dataclasses.replace(SETTINGS, **changes)
 
 
+def test_spaces_of_many_graded_spans_lay_out_their_segments():
+    """The shooting segments of 48-128 graded knot spans (the space check's finer spaces): each segment's
+    window of control points holds every point that reaches its samples, judged relative to the basis'
+    size (the end spans' second derivatives reach 2e4 at 64 spans, where an absolute 1e-12 failed)."""
+    from biped_jax.gait import segmented
+    for spans in (48, 64, 128):
+        first, window, data = segmented._layout(dataclasses.replace(SETTINGS, spans=spans, segments=spans))
+        assert window == 1 + SETTINGS.degree and list(first) == list(range(spans))
+        assert data["basis_grid"].shape[:3] == (spans, 3, SETTINGS.substeps + 1)
+
+
 @pytest.mark.slow
 def test_projection_into_a_finer_space_keeps_the_curve(biped12):
     """Continuation: a coarse-space curve carried into a space with nested knots is the same curve."""

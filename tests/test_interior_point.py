@@ -358,32 +358,44 @@ def test_a_free_step_length_reaches_the_fixed_step_optimum_at_its_length(interio
 
 
 def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
-    """``biped-jax library``'s study on a 2 x 2 grid in the tests' space: every point converged, its
-    drive demand within the problem's limits (peak power at most M_W, RMS torque at most the peak), the
-    optimal step length at each speed inside the grid's lengths and no dearer per metre than any grid
-    point at that speed (it starts from the cheapest), the files' arrays equal to the JSON; a point that
-    did not converge restarts from its nearest converged neighbour."""
+    """``biped-jax library``'s study on a 2 x 2 grid in the tests' space (4 knot spans) with its space
+    check in 8: every point converged in 4 spans and reached an optimum in 8, cheaper there (the finer
+    space holds the coarser gait), so much cheaper (4-19 %) that the space check calls every point
+    "space dependent" with its estimated error |J4 - J8| / (2^2 - 1) / J8; each gait's drive demand
+    within the problem's limits (peak power at most M_W, RMS torque at most the peak); the optimal step
+    length at each speed inside the grid's lengths and no dearer per metre than any grid point at that
+    speed; the files' arrays equal to the JSON; a point that did not converge restarts from its nearest
+    converged neighbour."""
+    from biped_jax.gait import spaces
     from biped_jax.report import outputs
     from biped_jax.studies import library
     solver = interior_gaits[0]
     grid = library.LibraryGrid("12kg", (0.45, 0.6), (0.15, 0.2), 20.0)
     # one start family in the solver's own space: the gait tests' program (a batch of four)
     family = library.LIBRARY_FAMILIES[0]
-    record = library.run_library(tmp_path, grid, solver=solver, families=(family,))
+    finer = spaces.finer_solver(solver, 2)
+    record = library.run_library(tmp_path, grid, solver=solver, families=(family,), finer=finer)
     points = record["points"]
-    assert [p["status"] for p in points] == ["converged"] * 4, [p["status"] for p in points]
+    assert record["space_check"] == {"spans": 8, "tolerance": spaces.SPACE_TOLERANCE, "order": spaces.SPACE_ORDER}
+    assert [p["status"] for p in points] == [spaces.SPACE_DEPENDENT] * 4, [p["status"] for p in points]
     assert all(p["started"] == family.name and [s["family"] for s in p["starts"]] == [family.name] for p in points)
     for p in points:
+        space = p["space"]
+        coarse, fine = space["cost"]
+        assert space["spans"] == [4, 8] and space["status_finer"] == "converged" and fine == p["cost"]
+        assert 0.75 * coarse < fine < 0.97 * coarse
+        assert space["error_estimate"] == pytest.approx((coarse - fine) / 3 / fine) and not space["passed"]
         assert max(p["power_peak_W"]) <= 20.0 * (1 + 1e-6) and max(p["torque_peak_Nm"]) <= 20.0 * (1 + 1e-6)
         assert all(rms <= peak for rms, peak in zip(p["torque_rms_Nm"], p["torque_peak_Nm"]))
         assert p["cost_per_metre"] == pytest.approx(p["cost"] / p["step_length_m"])
     for i, best in enumerate(record["optimal_step"]):
-        assert best["status"] == "converged" and 0.15 <= best["step_length_m"] <= 0.2
+        assert best["status"] == spaces.SPACE_DEPENDENT and 0.15 <= best["step_length_m"] <= 0.2
         row = points[2 * i:2 * i + 2]
         assert best["cost_per_metre"] <= min(p["cost_per_metre"] for p in row) * (1 + 1e-7)  # solver tolerance
-        assert best["speed_mps"] == pytest.approx(grid.speeds[i])
+        assert best["speed_mps"] == pytest.approx(grid.speeds[i]) and best["space"]["spans"] == [4, 8]
     arrays = outputs.read_npz(tmp_path / "library.npz")
     np.testing.assert_allclose(arrays["cost_per_metre"].ravel(), [p["cost_per_metre"] for p in points])
+    np.testing.assert_allclose(arrays["space_error_estimate"].ravel(), [p["space"]["error_estimate"] for p in points])
     np.testing.assert_allclose(arrays["optimal_step_length_m"], [b["step_length_m"] for b in record["optimal_step"]])
     assert np.all(arrays["family_index"] == 0)
     assert (tmp_path / "library_map.png").stat().st_size > 0 and (tmp_path / "library_drives.png").stat().st_size > 0

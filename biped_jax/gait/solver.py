@@ -91,6 +91,8 @@ class GaitSolution:
         violations on a grid ``gait_problem.REFINEMENT`` times finer, the same decision vector.
       starts: from :func:`solve_multistart`, every start's family, status and cost (the spread over
         starts: does the optimum look unique?).
+      space: from :func:`biped_jax.gait.spaces.space_check`, J in the gait's space and in a finer one and
+        the estimated error of the space.
     """
 
     name: str
@@ -114,6 +116,7 @@ class GaitSolution:
     multipliers_in: np.ndarray
     refinement: dict = dataclasses.field(default_factory=dict)
     starts: list = dataclasses.field(default_factory=list)
+    space: dict = dataclasses.field(default_factory=dict)
 
     @property
     def energy_per_metre(self) -> float:

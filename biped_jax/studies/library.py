@@ -15,6 +15,11 @@ with the optimal step length at every speed and what the drives must deliver the
 - At every speed the step length is then freed (:meth:`~biped_jax.gait.solver.GaitSolver.solve_step_length`)
   from the grid's cheapest converged point per metre, within the grid's step lengths: the optimal-L
   curve, all speeds in one batch.
+- Every point and every speed's optimal step is then solved again, warm, in a space with
+  :data:`SPACE_FACTOR` times the knot spans (:func:`biped_jax.gait.spaces.space_check`; the refinement
+  check refines the rollout grid, not the joint paths' space, whose error dominates at long steps) and
+  reported there, with J in both spaces and the estimated error of the finer one ("space dependent"
+  where it exceeds 1 %).
 
 Every point reports J, J / L, t_f, the status and the refinement check, and per joint the peak and RMS
 torque, the peak speed and the peak power; on a catalogue drive (``LibraryGrid.drive``: the robot
@@ -36,7 +41,7 @@ import numpy as np
 from biped_jax import checks
 from biped_jax.gait import multistart
 from biped_jax.gait import problem as gait_problem
-from biped_jax.gait import verdict
+from biped_jax.gait import spaces, verdict
 from biped_jax.gait.report import JOINTS
 from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import interior_point, nlp
@@ -50,9 +55,17 @@ RPM = 2 * np.pi / 60
 #: The library's default reference space: 16 knot spans, a shooting segment each, 4 Runge-Kutta steps per
 #: span (the study's 48 spans are three times the work per point; see :data:`QUICK_SETTINGS`).
 LIBRARY_SETTINGS = gait_problem.GaitSettings(spans=16, substeps=4)
-#: ``--quick``: the library's space on a 3 x 3 grid (every file stamped). 8 knot spans left 6 of 9
-#: points "grid dependent" (measured 2026-12-05).
+#: ``--quick``: the library's space on a 3 x 3 grid (every file stamped), without the space check. 8 knot
+#: spans left 6 of 9 points "grid dependent" (measured 2026-12-05).
 QUICK_SETTINGS = LIBRARY_SETTINGS
+#: The space check's knot spans, a multiple of the library's: every point's optimum solved again, warm, in
+#: 3x the spans (48, the study's space; nested, so each solve starts at the 16-span optimum) and
+#: reported there (:func:`biped_jax.gait.spaces.space_check`). Measured on the default grid (2026-12-05):
+#: the 16-span optima at 0.25 m lie 4.7-8.0 % above the collocation peer, the 48-span ones -0.2 to +0.9 %
+#: (all twelve points within 1 %); 32 spans left the four 0.25 m points 1.6-2.5 % above. One stage for
+#: every point is one compiled program: a 32-span check of all twelve (119 s) and a second stage for the
+#: points it fails would cost more than the one 48-span stage (184 s) on 2 cores.
+SPACE_FACTOR = 3
 #: The library's interior point: once 90 % of a batch's points have finished the others get 60 more
 #: iterations (a point that needs more is re-solved from a converged neighbour, a better start than
 #: more iterations from the heuristic one).
@@ -201,6 +214,38 @@ def optimal_step_lengths(solver: GaitSolver, grid: LibraryGrid, solutions: list[
     return optimal
 
 
+def check_spaces(finer: GaitSolver, solver: GaitSolver, grid: LibraryGrid, solutions: list[GaitSolution],
+                 optimal: list[GaitSolution | None], say: Callable[[str], None] | None = None
+                 ) -> tuple[list[GaitSolution], list[GaitSolution | None]]:
+    """The grid's points and every speed's optimal step (``solver``'s space) solved again in ``finer``'s,
+    all in one batch (:func:`biped_jax.gait.spaces.space_check`); returns them as reported there. A
+    speed's optimal step is then the cheapest per metre of its free step length and its grid points
+    that reached an optimum in the finer space (the step length was found in the coarser one)."""
+    speeds, lengths = grid.shape
+    models = grid.models()
+    free = [i for i, s in enumerate(optimal) if s is not None and not any(s is g for g in solutions)]
+    names = grid.names() + [optimal[i].name for i in free]
+    models = models + [dataclasses.replace(models[i * lengths], step_length=np.asarray(optimal[i].step_length_m))
+                       for i in free]
+    checked = spaces.space_check(finer, solver, names, models, solutions + [optimal[i] for i in free],
+                                 progress=iteration_progress(say or (lambda message: None),
+                                                             f"space check ({finer.settings.spans} knot spans)",
+                                                             finer.options.max_iterations))
+    points, found = checked[:len(solutions)], dict(zip(free, checked[len(solutions):]))
+    best = []
+    for i, s in enumerate(optimal):
+        if s is None:
+            best.append(None)
+            continue
+        row = points[i * lengths:(i + 1) * lengths]
+        # the free step's gait, or the grid point it was, in the finer space
+        own = found[i] if i in found else row[[g is s for g in solutions[i * lengths:(i + 1) * lengths]].index(True)]
+        # an optimum of the finer space, its space's estimated error within the tolerance or not
+        usable = [c for c in (own, *row) if c.status in (nlp.CONVERGED, spaces.SPACE_DEPENDENT)]
+        best.append(min(usable, key=lambda c: c.energy_per_metre) if usable else own)
+    return points, best
+
+
 def demand(solution: GaitSolution) -> dict:
     """What the drives must deliver on a gait, per joint (H1, K1, H2, K2): peak and RMS torque (N m),
     peak speed (rpm) and peak power (W)."""
@@ -221,7 +266,7 @@ def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None 
               "cost": solution.cost, "cost_per_metre": solution.energy_per_metre, "t_f": solution.step_time_s,
               "max_violation": solution.max_violation, "refinement_passed": solution.refinement.get("passed"),
               "refined_cost": solution.refinement.get("cost"), "started": started, "starts": solution.starts,
-              **demand(solution)}
+              "space": solution.space or None, **demand(solution)}
     if grid is not None and grid.drive is not None:
         from biped_jax.drives import model as drive_model
         from biped_jax.drives import selection
@@ -260,24 +305,36 @@ def library_solvers(grid: LibraryGrid, settings: gait_problem.GaitSettings = LIB
 
 def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS,
                 rounds: int = 3, say: Callable[[str], None] | None = None, solver: GaitSolver | None = None,
-                families=LIBRARY_FAMILIES) -> dict:
+                families=LIBRARY_FAMILIES, space_factor: int = SPACE_FACTOR, finer: GaitSolver | None = None) -> dict:
     """Solves the library of ``grid`` in ``settings``' space from every start family of ``families``
     (:func:`library_solvers`; or with ``solver``, sharing its compiled programs, the starts solved in its
-    own space) and writes its files into ``out``; returns the library record (what ``library.json``
-    holds)."""
+    own space), checks every optimum in a space with ``space_factor`` times the knot spans (0: no space
+    check; or in ``finer``'s space, sharing its programs) and writes its files into ``out``; returns the
+    library record (what ``library.json`` holds)."""
     checks.integer_in("rounds", rounds, 0, 20)
+    checks.integer_in("space_factor", space_factor, 0, 8)
+    if space_factor == 1:
+        raise ValueError("space_factor must be 0 (no space check) or at least 2, got 1")
     say = say or (lambda message: None)
     solver, coarse = (solver, None) if solver is not None else library_solvers(grid, settings)
     settings = solver.settings
+    if finer is None and space_factor:
+        finer = spaces.finer_solver(solver, space_factor)
     out.mkdir(parents=True, exist_ok=True)
     say(f"{grid.mass_class}, {grid.power_limit:g} W: {grid.shape[0]} speeds x {grid.shape[1]} step lengths "
         f"x {len(families)} start families in one batch ({settings.spans} knot spans)")
     solutions, started = solve_grid(solver, grid, rounds, say, families, coarse)
     say("the optimal step length at every speed")
     optimal = optimal_step_lengths(solver, grid, solutions, say)
+    if finer is not None:
+        say(f"the space check: every optimum again in {finer.settings.spans} knot spans")
+        solutions, optimal = check_spaces(finer, solver, grid, solutions, optimal, say)
     record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit,
               "drive": None if grid.drive is None else list(grid.drive), "speeds_mps": list(grid.speeds),
               "step_lengths_m": list(grid.step_lengths), "settings": dataclasses.asdict(settings),
+              "space_check": None if finer is None else {"spans": finer.settings.spans,
+                                                         "tolerance": spaces.SPACE_TOLERANCE,
+                                                         "order": spaces.SPACE_ORDER},
               "families": [f.name for f in families],
               "joints": list(JOINTS), "points": [point_record(s, w, grid) for s, w in zip(solutions, started)],
               "optimal_step": [None if s is None else point_record(
@@ -291,6 +348,9 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
     for key in ("cost", "cost_per_metre", "t_f"):
         arrays[key] = np.array([p[key] for p in record["points"]]).reshape(shape)
     arrays["converged"] = np.array([p["status"] == nlp.CONVERGED for p in record["points"]]).reshape(shape)
+    # the space check's estimated relative error of J (NaN: not checked)
+    arrays["space_error_estimate"] = np.array([(p["space"] or {}).get("error_estimate") for p in record["points"]],
+                                              dtype=float).reshape(shape)
     # the family each point's gait started from (-1: continued from a neighbour)
     arrays["family_index"] = np.array([record["families"].index(p["started"]) if p["started"] in record["families"]
                                        else -1 for p in record["points"]]).reshape(shape)

@@ -156,11 +156,10 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
 
 
 def _drive_check(problem: Problem, model: gait_problem.GaitModel, solution) -> dict:
-    """The catalogue check of the problem's drive at every joint on the solved gait of ``model``."""
-    from biped_jax.drives import model as drive_model
+    """The catalogue check of the problem's drive at every joint on the solved gait of ``model``
+    (:func:`biped_jax.drives.selection.drive_summary`: the verdict per joint and how long it walks)."""
     from biped_jax.drives import selection
     motor, gearhead = problem.parts
     voltage = float(model.drives.supply_voltage)
-    joints = selection.joint_verdicts((motor,) * 4, (gearhead,) * 4, solution, voltage, drive_model.load_catalogue())
     return {"motor": motor, "gearhead": gearhead, "supply_voltage_V": voltage,
-            "passes_catalogue_check": all(v["feasible"] for v in joints), "joints": joints}
+            **selection.drive_summary(motor, gearhead, solution, voltage)}
