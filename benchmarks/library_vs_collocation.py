@@ -19,6 +19,8 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
+
 from _results import save_results
 
 
@@ -31,6 +33,33 @@ def chosen_points(points: list[dict], count: int | None) -> list[dict]:
     step = len(points) / count
     picked = [points[int(k * step)] for k in range(count)]
     return picked if steepest in picked else picked[:-1] + [steepest]
+
+
+#: The peer's relative joints (H1, K1, H2, K2) = RELATIVE_JOINTS @ phi are ours times these signs (our hips
+#: turn about -y); as in peer_basin.py.
+JOINT_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])
+#: Our pinned state's columns of (H1, K1, H2, K2) (biped_jax.robots.planar_biped.ACTUATED_INDEX).
+ACTUATED = [2, 1, 3, 4]
+
+
+def peer_guess(q: np.ndarray, qd: np.ndarray, u: np.ndarray, t_f: float, segments: int) -> dict:
+    """Our gait (``library.npz``'s samples evenly in time: q, qd (S, 5), u (S, 4)) as a start of the peer
+    on ``segments`` Hermite-Simpson segments: its link pitches phi from our stance angle (its shank
+    pitch) and joints, interpolated at its knots and midpoints; the torques with the joints' signs."""
+    s = np.linspace(0.0, 1.0, q.shape[0])
+    nodes = np.linspace(0.0, 1.0, 2 * segments + 1)
+
+    def pitches(stance, joints):
+        hip1, knee1, hip2, knee2 = (joints * JOINT_SIGNS).T
+        thigh1 = stance - knee1
+        torso = hip1 + thigh1
+        thigh2 = torso - hip2
+        return np.stack([stance, thigh1, torso, thigh2, knee2 + thigh2])
+
+    phi = pitches(q[:, 0], q[:, ACTUATED])
+    phid = pitches(qd[:, 0], qd[:, ACTUATED])
+    at = lambda a: np.stack([np.interp(nodes, s, row) for row in a])  # noqa: E731
+    return {"phi": at(phi), "phid": at(phid), "u": at((u * JOINT_SIGNS).T)}
 
 
 def main():
@@ -48,19 +77,31 @@ def main():
     if record.get("drive") is not None:
         parser.error("the peer has ideal drives only: give a library without --drive")
     spec = PLANAR_SPECS[record["mass_class"]]
+    gaits = np.load(args.library / "library.npz")
     rows = []
     for point in chosen_points(record["points"], args.points):
         problem = PeerProblem(spec, point["speed_mps"], record["power_limit_W"], point["step_length_m"])
         coarse, fine = solve(problem, args.segments), solve(problem, 2 * args.segments)
         ours = point["refined_cost"]
         gap = 100 * (ours / fine["cost"] - 1)
+        confirmed = None
+        if gap < 0:
+            # below the peer: the peer started from our gait must find it (a cheaper optimum of its own problem)
+            index = record["points"].index(point)
+            at = np.unravel_index(index, gaits["cost"].shape)
+            guess = peer_guess(gaits["gait_q"][at], gaits["gait_qd"][at], gaits["gait_u"][at], point["t_f"],
+                               2 * args.segments)
+            warm = solve(problem, 2 * args.segments, guess=guess)
+            confirmed = {"cost": warm["cost"], "status": warm["status"], "gap_percent": 100 * (ours / warm["cost"] - 1)}
+            print(f"  the peer from our gait: J {warm['cost']:.4f} ({warm['status']}), ours "
+                  f"{confirmed['gap_percent']:+.2f} % from it", flush=True)
         rows.append({"speed_mps": point["speed_mps"], "step_length_m": point["step_length_m"],
                      "ours": {"cost": point["cost"], "cost_refined": ours, "status": point["status"],
                               "refinement_passed": point["refinement_passed"], "started": point["started"],
                               "space": point.get("space")},
                      "peer": {"cost": coarse["cost"], "status": coarse["status"], "segments": args.segments,
                               "cost_finer_mesh": fine["cost"], "status_finer_mesh": fine["status"]},
-                     "gap_percent": gap})
+                     "gap_percent": gap, "peer_from_ours": confirmed})
         space = point.get("space") or {}
         spans = "" if space.get("error_estimate") is None else (
             f" in {space['spans'][1]} spans (J {space['cost'][0]:.4f} in {space['spans'][0]}, "

@@ -396,6 +396,11 @@ def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
     arrays = outputs.read_npz(tmp_path / "library.npz")
     np.testing.assert_allclose(arrays["cost_per_metre"].ravel(), [p["cost_per_metre"] for p in points])
     np.testing.assert_allclose(arrays["space_error_estimate"].ravel(), [p["space"]["error_estimate"] for p in points])
+    # every point's gait sampled in time: within its peak torque, reaching most of it between the samples
+    assert arrays["gait_q"].shape == (2, 2, library.GAIT_SAMPLES, 5) and arrays["gait_u"].shape[-1] == 4
+    peaks = np.abs(arrays["gait_u"]).max(axis=2).reshape(4, 4)
+    torque_peak = np.array([p["torque_peak_Nm"] for p in points])
+    assert np.all(peaks <= torque_peak * (1 + 1e-9)) and np.all(peaks.max(axis=1) >= 0.8 * torque_peak.max(axis=1))
     np.testing.assert_allclose(arrays["optimal_step_length_m"], [b["step_length_m"] for b in record["optimal_step"]])
     assert np.all(arrays["family_index"] == 0)
     assert (tmp_path / "library_map.png").stat().st_size > 0 and (tmp_path / "library_drives.png").stat().st_size > 0

@@ -26,8 +26,9 @@ torque, the peak speed and the peak power; on a catalogue drive (``LibraryGrid.d
 carries it, J is the motors' Joule energy, the gait keeps the supply voltage and the gears' limits)
 also the catalogue check per joint and how long it walks before a winding reaches its rated
 temperature (:mod:`biped_jax.drives.thermal`). Written: ``library.json``, ``library.npz`` (arrays over the
-grid), ``library_map.png`` (J / L over (speed, L) with the optimal-L curve) and ``library_drives.png``
-(peak torque and speed per joint against speed, at the optimal step length).
+grid, every point's gait sampled in time: :func:`sampled_gait`), ``library_map.png`` (J / L over
+(speed, L) with the optimal-L curve) and ``library_drives.png`` (peak torque and speed per joint against
+speed, at the optimal step length).
 """
 
 from __future__ import annotations
@@ -246,6 +247,22 @@ def check_spaces(finer: GaitSolver, solver: GaitSolver, grid: LibraryGrid, solut
     return points, best
 
 
+#: Samples of every point's gait in ``library.npz``, evenly spaced in normalised time s = t / t_f.
+GAIT_SAMPLES = 97
+
+
+def sampled_gait(solution: GaitSolution, samples: int = GAIT_SAMPLES) -> dict:
+    """A gait's pinned state and torques at ``samples`` points evenly spaced in s = t / t_f, linearly
+    interpolated between its rollout grid's points: "q", "qd" (samples, 5) in rad and rad/s (the columns
+    of :attr:`~biped_jax.gait.problem.GaitTrajectory.q`: the stance angle, then the joints), "u"
+    (samples, 4) in N m (H1, K1, H2, K2)."""
+    tr = solution.trajectory
+    t = np.asarray(tr.t)
+    at = np.linspace(0.0, 1.0, samples) * t[-1]
+    return {key: np.stack([np.interp(at, t, column) for column in np.asarray(getattr(tr, key)).T], axis=-1)
+            for key in ("q", "qd", "u")}
+
+
 def demand(solution: GaitSolution) -> dict:
     """What the drives must deliver on a gait, per joint (H1, K1, H2, K2): peak and RMS torque (N m),
     peak speed (rpm) and peak power (W)."""
@@ -259,9 +276,10 @@ def demand(solution: GaitSolution) -> dict:
             "power_peak_W": np.abs(speed * torque).max(axis=0).tolist()}
 
 
-def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None = None) -> dict:
+def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None = None, catalogue=None) -> dict:
     """What ``library.json`` holds of one gait: its numbers, where it started, every start's outcome where
-    it was started afresh, and on a drive (``grid.drive``) the catalogue check and the walk time."""
+    it was started afresh, and on a drive (``grid.drive``) the catalogue check and the walk time
+    (``catalogue``: the :class:`~biped_jax.drives.model.Catalogue`, None: the shipped one)."""
     record = {"speed_mps": solution.speed_mps, "step_length_m": solution.step_length_m, "status": solution.status,
               "cost": solution.cost, "cost_per_metre": solution.energy_per_metre, "t_f": solution.step_time_s,
               "max_violation": solution.max_violation, "refinement_passed": solution.refinement.get("passed"),
@@ -270,7 +288,7 @@ def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None 
     if grid is not None and grid.drive is not None:
         from biped_jax.drives import model as drive_model
         from biped_jax.drives import selection
-        catalogue = drive_model.load_catalogue()
+        catalogue = catalogue or drive_model.load_catalogue()
         voltage = catalogue.supply_voltage if grid.supply_voltage is None else grid.supply_voltage
         summary = selection.drive_summary(*grid.drive, solution, voltage, catalogue)
         record["drive_check"] = {k: summary[k] for k in ("passes_catalogue_check", "reasons", "walk_time_s")}
@@ -329,6 +347,10 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
     if finer is not None:
         say(f"the space check: every optimum again in {finer.settings.spans} knot spans")
         solutions, optimal = check_spaces(finer, solver, grid, solutions, optimal, say)
+    catalogue = None
+    if grid.drive is not None:
+        from biped_jax.drives import model as drive_model
+        catalogue = drive_model.load_catalogue()
     record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit,
               "drive": None if grid.drive is None else list(grid.drive), "speeds_mps": list(grid.speeds),
               "step_lengths_m": list(grid.step_lengths), "settings": dataclasses.asdict(settings),
@@ -336,9 +358,10 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
                                                          "tolerance": spaces.SPACE_TOLERANCE,
                                                          "order": spaces.SPACE_ORDER},
               "families": [f.name for f in families],
-              "joints": list(JOINTS), "points": [point_record(s, w, grid) for s, w in zip(solutions, started)],
+              "joints": list(JOINTS),
+              "points": [point_record(s, w, grid, catalogue) for s, w in zip(solutions, started)],
               "optimal_step": [None if s is None else point_record(
-                  s, "grid point" if any(s is g for g in solutions) else "free step length", grid)
+                  s, "grid point" if any(s is g for g in solutions) else "free step length", grid, catalogue)
                   for s in optimal]}
     if grid.drive is not None:
         record["indefinite_walk"] = indefinite_walk(record["optimal_step"])
@@ -356,6 +379,11 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
                                        else -1 for p in record["points"]]).reshape(shape)
     for key in ("torque_peak_Nm", "torque_rms_Nm", "speed_peak_rpm", "power_peak_W"):
         arrays[key] = np.array([p[key] for p in record["points"]]).reshape(*shape, 4)
+    # every point's gait, for scripts that start from it (another solver, a controller)
+    arrays["gait_s"] = np.linspace(0.0, 1.0, GAIT_SAMPLES)
+    gaits = [sampled_gait(solution) for solution in solutions]
+    for key in ("q", "qd", "u"):
+        arrays[f"gait_{key}"] = np.stack([g[key] for g in gaits]).reshape(*shape, GAIT_SAMPLES, -1)
     arrays["optimal_step_length_m"] = np.array([np.nan if s is None else s.step_length_m for s in optimal])
     arrays["optimal_cost_per_metre"] = np.array([np.nan if s is None else s.energy_per_metre for s in optimal])
     outputs.save_npz(out / "library.npz", **arrays)
