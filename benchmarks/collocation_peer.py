@@ -192,6 +192,27 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
             "t": np.linspace(0, t_f, nodes)}
 
 
+def power_between_nodes(problem: PeerProblem, result: dict, samples: int = 20) -> float:
+    """The largest joint power |(S phid) u| of a solve's gait between its nodes, W: the rates' cubic Hermite
+    interpolant (their slopes the dynamics' accelerations at the nodes) and the torques' quadratic through
+    each segment's knots and midpoint (the transcription's own interpolants), ``samples`` points per node
+    interval. The limit holds at the nodes only; this is what the gait asks of a motor in between."""
+    from scipy.interpolate import CubicHermiteSpline
+    outputs = _model(problem.spec)[0]
+    phi, phid, u, t = result["phi"], result["phid"], result["u"], result["t"]
+    phidd = np.stack([np.asarray(outputs(phi[:, k], phid[:, k], u[:, k])[0]).ravel() for k in range(phi.shape[1])],
+                     axis=1)
+    dense = np.linspace(0.0, t[-1], samples * (len(t) - 1) + 1)
+    rates = CubicHermiteSpline(t, (RELATIVE_JOINTS @ phid).T, (RELATIVE_JOINTS @ phidd).T)(dense).T
+    torques = np.zeros((4, len(dense)))
+    for a in range(0, len(t) - 2, 2):
+        inside = (dense >= t[a]) & (dense <= t[a + 2])
+        tau = (dense[inside] - t[a]) / (t[a + 2] - t[a])
+        torques[:, inside] = (u[:, a, None] * (2 * tau - 1) * (tau - 1) + u[:, a + 1, None] * 4 * tau * (1 - tau)
+                              + u[:, a + 2, None] * tau * (2 * tau - 1))
+    return float(np.abs(rates * torques).max())
+
+
 def main():
     import argparse
     from pathlib import Path

@@ -7,8 +7,10 @@ point: our J on the library's grid and on the 4x finer one, our status, refineme
 check (J in the library's space and in the finer one it reports, the estimated error), the peer's J on
 both meshes and the gap (ours on the 4x grid / the peer's on its finer mesh - 1, in %); where ours is
 below the peer (``--from-ours all``: everywhere) the peer started from our gait (``library.npz``'s samples)
-on its finer mesh, which must find our gait or a cheaper one; and how many points are within 1 % of the
-peer (or below it), and of the peer from our gait too. Needs the ``bench`` extra (casadi).
+on its finer mesh, which must find our gait or a cheaper one; the peer's largest joint power between its
+nodes (``collocation_peer.power_between_nodes``: it holds M_W at its nodes only, ours on the 4x grid);
+and how many points are within 1 % of the peer (or below it), and of the peer from our gait too. Needs
+the ``bench`` extra (casadi).
 
     biped-jax library --out OUT
     python benchmarks/library_vs_collocation.py OUT          # every converged point
@@ -75,7 +77,7 @@ def main():
     parser.add_argument("--name", default="library_vs_collocation")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
-    from collocation_peer import PeerProblem, solve
+    from collocation_peer import PeerProblem, power_between_nodes, solve
 
     from biped_jax.robots.specs import PLANAR_SPECS
     record = json.loads((args.library / "library.json").read_text())
@@ -97,15 +99,18 @@ def main():
             guess = peer_guess(gaits["gait_q"][at], gaits["gait_qd"][at], gaits["gait_u"][at], point["t_f"],
                                2 * args.segments)
             warm = solve(problem, 2 * args.segments, guess=guess)
-            confirmed = {"cost": warm["cost"], "status": warm["status"], "gap_percent": 100 * (ours / warm["cost"] - 1)}
-            print(f"  the peer from our gait: J {warm['cost']:.4f} ({warm['status']}), ours "
+            confirmed = {"cost": warm["cost"], "status": warm["status"], "gap_percent": 100 * (ours / warm["cost"] - 1),
+                         "power_between_nodes_W": power_between_nodes(problem, warm)}
+            print(f"  the peer from our gait: J {warm['cost']:.4f} ({warm['status']}, "
+                  f"{confirmed['power_between_nodes_W']:.2f} W between its nodes), ours "
                   f"{confirmed['gap_percent']:+.2f} % from it", flush=True)
         rows.append({"speed_mps": point["speed_mps"], "step_length_m": point["step_length_m"],
                      "ours": {"cost": point["cost"], "cost_refined": ours, "status": point["status"],
                               "refinement_passed": point["refinement_passed"], "started": point["started"],
                               "space": point.get("space")},
                      "peer": {"cost": coarse["cost"], "status": coarse["status"], "segments": args.segments,
-                              "cost_finer_mesh": fine["cost"], "status_finer_mesh": fine["status"]},
+                              "cost_finer_mesh": fine["cost"], "status_finer_mesh": fine["status"],
+                              "power_between_nodes_W": power_between_nodes(problem, fine)},
                      "gap_percent": gap, "peer_from_ours": confirmed})
         space = point.get("space") or {}
         spans = "" if space.get("error_estimate") is None else (
@@ -113,7 +118,8 @@ def main():
             f"est. error {100 * space['error_estimate']:.2f} %)")
         print(f"{point['speed_mps']:5.2f} m/s, L {point['step_length_m']:5.3f} m: ours J {point['cost']:8.4f}{spans} "
               f"(4x grid {ours:8.4f}, {point['status']})  peer J {coarse['cost']:8.4f} / {fine['cost']:8.4f} "
-              f"({coarse['status']} / {fine['status']}, {args.segments} / {2 * args.segments} segments)  "
+              f"({coarse['status']} / {fine['status']}, {args.segments} / {2 * args.segments} segments, "
+              f"{rows[-1]['peer']['power_between_nodes_W']:.2f} W between its nodes)  "
               f"gap {gap:+6.2f} %", flush=True)
     within = sum(row["gap_percent"] <= 1.0 for row in rows)
     confirmed = sum(row["gap_percent"] <= 1.0 and (row["peer_from_ours"] is None
