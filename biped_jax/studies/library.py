@@ -254,7 +254,7 @@ GAIT_SAMPLES = 97
 def sampled_gait(solution: GaitSolution, samples: int = GAIT_SAMPLES) -> dict:
     """A gait's pinned state and torques at ``samples`` points evenly spaced in s = t / t_f, linearly
     interpolated between its rollout grid's points: "q", "qd" (samples, 5) in rad and rad/s (the columns
-    of :attr:`~biped_jax.gait.problem.GaitTrajectory.q`: the stance angle, then the joints), "u"
+    of a :class:`~biped_jax.gait.problem.GaitTrajectory`'s q: the stance angle, then the joints), "u"
     (samples, 4) in N m (H1, K1, H2, K2)."""
     tr = solution.trajectory
     t = np.asarray(tr.t)
