@@ -2,6 +2,7 @@
 multipliers, and its exact coloured derivatives against dense ones and central differences."""
 
 import dataclasses
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -130,6 +131,34 @@ def test_batches_of_other_problems_and_sizes_share_one_program():
     # batches are padded (to 6 here): other targets, 5 and 6 problems run in one program
     assert compiled.block._cache_size() == 1
     assert compiled.initial._cache_size() == 1
+
+
+def test_a_batch_is_sharded_over_every_device_jax_sees():
+    """With two (host) devices the batch's leading axis is split over both, and every problem still
+    reaches hs071's optimum: a fresh process, as the device count is fixed when JAX starts."""
+    import os
+    import subprocess
+    import sys
+    code = """
+import jax, jax.numpy as jnp, numpy as np
+from biped_jax.commands import configure_jax
+configure_jax()
+from biped_jax.optim import interior_point, nlp
+from tests.test_interior_point import hs071
+assert jax.device_count() == 2, jax.devices()
+sharding = interior_point.batch_sharding(4)
+assert sharding is not None and len(sharding.device_set) == 2
+assert interior_point.batch_sharding(interior_point.padded_batch(3)) is not None  # an odd batch is padded, then split
+starts = jnp.array([[1.0, 5.0, 5.0, 1.0], [2.0, 2.0, 2.0, 2.0], [1.5, 4.0, 4.0, 1.5], [1.2, 4.5, 4.0, 1.2]])
+result = interior_point.solve(nlp.ConstrainedProblem(hs071), starts, jnp.full(4, 40.0))
+assert result.status == ["converged"] * 4, result.status
+np.testing.assert_allclose(result.cost, 17.0140173, rtol=1e-7)
+"""
+    flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    root = Path(__file__).resolve().parent.parent
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, cwd=root,
+                         env={**os.environ, "XLA_FLAGS": flags.strip(), "PYTHONPATH": str(root)})
+    assert run.returncode == 0, run.stderr[-3000:]
 
 
 def test_batches_are_padded_to_few_sizes():

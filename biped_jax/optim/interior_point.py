@@ -524,9 +524,12 @@ def _status(code: int, final_violation: float, options: InteriorPointOptions) ->
 def padded_batch(batch: int) -> int:
     """The batch size a batch of ``batch`` problems runs as: the next power of two or 1.5 times one (1, 2,
     3, 4, 6, 8, 12, 16, 24, ...), so that batches of nearby sizes share a compiled program and padding
-    leaves at most a third of the lanes idle."""
+    leaves at most a third of the lanes idle; then up to a multiple of the devices JAX sees, so that
+    :func:`batch_sharding` splits it over all of them."""
     size = 1 << max(batch - 1, 0).bit_length()
-    return 3 * size // 4 if size >= 4 and 3 * size // 4 >= batch else size
+    size = 3 * size // 4 if size >= 4 and 3 * size // 4 >= batch else size
+    devices = jax.device_count()
+    return -(-size // devices) * devices
 
 
 def pad_rows(leaf, size: int):

@@ -93,10 +93,11 @@ def problems(mass_classes=MASS_CLASSES, power_limits=POWER_LIMITS, drives=DRIVES
             + [TopSpeedProblem(m, drive=tuple(d), supply_voltage=supply_voltage) for m in mass_classes for d in drives])
 
 
-def _drive_check(problem: TopSpeedProblem, model: gait_problem.GaitModel, solution: GaitSolution) -> dict:
+def _drive_check(problem: TopSpeedProblem, solution: GaitSolution, catalogue) -> dict:
     """The catalogue check per joint of the problem's drive on its fastest gait, and how long it walks."""
     from biped_jax.drives import selection
-    summary = selection.drive_summary(*problem.drive, solution, float(model.drives.supply_voltage))
+    voltage = catalogue.supply_voltage if problem.supply_voltage is None else problem.supply_voltage
+    summary = selection.drive_summary(*problem.drive, solution, float(voltage), catalogue)
     return {k: summary[k] for k in ("passes_catalogue_check", "passes_without_thermal", "walk_time_s", "joints")}
 
 
@@ -159,12 +160,14 @@ def write_top_speed(out: Path, solver: GaitSolver, chosen: list[TopSpeedProblem]
                     found: dict[int, GaitSolution], bounds: tuple[float, float]) -> dict:
     """The record of :func:`solve_top_speeds`' results (each drive's fastest gait with its catalogue
     check), written to ``out``/top_speed.json with its figure ``top_speed.png``; returns it."""
+    from biped_jax.drives import model as drive_model
     out.mkdir(parents=True, exist_ok=True)
+    catalogue = drive_model.load_catalogue()
     entries = []
     for b, problem in enumerate(chosen):
         entry = record_of(problem, starts[b], found.get(b))
         if problem.drive is not None and b in found:
-            entry["drive_check"] = _drive_check(problem, problem.model(), found[b])
+            entry["drive_check"] = _drive_check(problem, found[b], catalogue)
         entries.append(entry)
     record = {"settings": dataclasses.asdict(solver.settings), "start_speed_mps": START_SPEED,
               "start_step_length_m": START_STEP_LENGTH, "step_bounds_m": list(bounds), "problems": entries}
