@@ -316,7 +316,7 @@ def run_library(args) -> int:
     console.print(f"{grid.mass_class}, {grid.power_limit:g} W: {converged} of {len(points)} grid points converged, "
                   f"{sum(bool(p['refinement_passed']) for p in points)} kept on the 4x grid"
                   + ("" if record["space_check"] is None else
-                     f", reported in {record['space_check']['spans']} knot spans, "
+                     f", reported in {' or '.join(map(str, record['space_check']['spans']))} knot spans, "
                      f"{sum(bool((p['space'] or {}).get('passed')) for p in points)} with the space's estimated "
                      f"error within {100 * record['space_check']['tolerance']:g} %"))
     for best in record["optimal_step"]:

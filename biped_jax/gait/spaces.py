@@ -10,9 +10,13 @@ and 6.6 % to 48, every gait passing the refinement check (``benchmarks/library_s
 :func:`space_check` solves each gait again, warm, in a space with ``factor`` times the knot spans (nested
 when ``factor`` is an integer: the finer space holds the coarser curve exactly, so its solve starts at the
 coarser optimum) and reports the finer optimum, with the estimated error of its J: for J converging as
-spans^-p the finer space's error is |J_coarse - J_fine| / (factor^p - 1). :data:`SPACE_ORDER` p = 2 is
-measured: against the collocation peer (``benchmarks/library_vs_collocation.py``) the library's errors
-at 0.25 m fell from 16 to 48 spans with orders 1.9-2.0 (0.45, 0.6 and 0.75 m/s).
+spans^-p the finer space's error is |J_coarse - J_fine| / (factor^p - 1), at most |J_coarse - J_fine| /
+(factor - 1) for any order p >= 1. :data:`SPACE_ORDER` takes p = 1, that bound, because the order is
+not the same everywhere: against the collocation peer the library's errors at 0.25 m fell from 16 to 48
+spans with orders 1.9-2.0 at 0.45-0.75 m/s, but at 0.3 m/s (a slow step of 0.83 s) with order 0.9: there
+48 spans are 2.0 % above the optimum (J 5.2350 against 5.1592 in 96 spans and the peer's 5.1323 on 320
+segments), which order 2 would have estimated at 0.4 % and order 1 estimates at 1.6 % (2026-12-05,
+``benchmarks/library_vs_collocation.py``).
 """
 
 from __future__ import annotations
@@ -33,8 +37,9 @@ from biped_jax.optim import nlp
 SPACE_DEPENDENT = "space dependent"
 #: Largest estimated relative error of J accepted from the space.
 SPACE_TOLERANCE = 0.01
-#: The order p of J's convergence in the knot spans (measured; see the module's docstring).
-SPACE_ORDER = 2.0
+#: The order p of J's convergence in the knot spans the estimate assumes: 1, the bound for every order
+#: p >= 1 (measured orders range from 0.9 to 2; see the module's docstring).
+SPACE_ORDER = 1.0
 #: Statuses whose gaits are checked (a gait that failed its own solve has no optimum to compare).
 CHECKED = (nlp.CONVERGED, verdict.GRID_DEPENDENT)
 
@@ -66,13 +71,14 @@ def space_record(coarse: GaitSolution, fine: GaitSolution, ratio: float, toleran
 
 def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models: list[gait_problem.GaitModel],
                 solutions: list[GaitSolution], tolerance: float = SPACE_TOLERANCE,
-                progress: Callable[[int, dict], None] | None = None) -> list[GaitSolution]:
+                progress: Callable[[int, dict], None] | None = None, statuses: tuple = CHECKED) -> list[GaitSolution]:
     """Every gait of ``solutions`` (solved in ``source``'s space for ``models``) that converged, on its grid
     or beyond it, carried into ``finer``'s space (:func:`biped_jax.gait.problem.project`) and solved
     there warm, all in one batch. Returns per gait the finer space's solution where that solve ended in
     an optimum (converged or grid dependent; :data:`SPACE_DEPENDENT` where it converged but its estimated
     error exceeds ``tolerance``), else the given one; each with ``space`` (:func:`space_record`, with
-    "spans": [coarse, fine]; ``{"skipped": status}`` for a gait not checked) and the given ``starts``."""
+    "spans": [coarse, fine]; ``{"skipped": status}`` for a gait not checked) and the given ``starts``.
+    ``statuses``: the statuses of the gaits checked (the others are returned as given)."""
     checks.number_in("tolerance", tolerance, 0.0, 1.0, "(a fraction of J)")
     if finer.settings.spans <= source.settings.spans:
         raise ValueError(f"the finer space has {finer.settings.spans} knot spans, the gaits' {source.settings.spans}: "
@@ -80,7 +86,7 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
     if len(names) != len(models) or len(models) != len(solutions):
         raise ValueError(f"names ({len(names)}), models ({len(models)}) and solutions ({len(solutions)}) must "
                          "be as many")
-    picked = [b for b, s in enumerate(solutions) if s.status in CHECKED]
+    picked = [b for b, s in enumerate(solutions) if s.status in statuses]
     out = list(solutions)
     for b, solution in enumerate(solutions):
         if b not in picked:
@@ -102,4 +108,31 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
                 fine.status = SPACE_DEPENDENT
         kept.space = record
         out[b] = kept
+    return out
+
+
+def refine_spaces(stages: list[GaitSolver], source: GaitSolver, names: list[str],
+                  models: list[gait_problem.GaitModel], solutions: list[GaitSolution],
+                  tolerance: float = SPACE_TOLERANCE, progress: Callable[[int, dict], None] | None = None
+                  ) -> list[GaitSolution]:
+    """More knots where a gait needs them: :func:`space_check` into ``stages[0]``'s space, then the gaits
+    still :data:`SPACE_DEPENDENT` into ``stages[1]``'s (each stage's spans more than the last's), and so
+    on. Each gait's ``space`` lists every space it was solved in ("spans", "cost"), the last pair's
+    change and estimated error."""
+    out = list(solutions)
+    previous = source
+    for k, stage in enumerate(stages):
+        picked = list(range(len(out))) if k == 0 else [b for b, s in enumerate(out) if s.status == SPACE_DEPENDENT]
+        if not picked:
+            break
+        before = [out[b].space for b in picked]
+        checked = space_check(stage, previous, [names[b] for b in picked], [models[b] for b in picked],
+                              [out[b] for b in picked], tolerance, progress,
+                              CHECKED if k == 0 else (SPACE_DEPENDENT,))
+        for b, solution, earlier in zip(picked, checked, before):
+            if k and "spans" in earlier and solution.space is not earlier:
+                solution.space = {**solution.space, "spans": earlier["spans"] + solution.space["spans"][1:],
+                                  "cost": earlier["cost"] + solution.space["cost"][1:]}
+            out[b] = solution
+        previous = stage
     return out

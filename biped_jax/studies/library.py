@@ -16,7 +16,8 @@ with the optimal step length at every speed and what the drives must deliver the
   from the grid's cheapest converged point per metre, within the grid's step lengths: the optimal-L
   curve, all speeds in one batch.
 - Every point and every speed's optimal step is then solved again, warm, in a space with
-  :data:`SPACE_FACTOR` times the knot spans (:func:`biped_jax.gait.spaces.space_check`; the refinement
+  :data:`SPACE_FACTOR` times the knot spans, those still space dependent in twice that
+  (:func:`biped_jax.gait.spaces.refine_spaces`; the refinement
   check refines the rollout grid, not the joint paths' space, whose error dominates at long steps) and
   reported there, with J in both spaces and the estimated error of the finer one ("space dependent"
   where it exceeds 1 %).
@@ -67,6 +68,9 @@ QUICK_SETTINGS = LIBRARY_SETTINGS
 #: every point is one compiled program: a 32-span check of all twelve (119 s) and a second stage for the
 #: points it fails would cost more than the one 48-span stage (184 s) on 2 cores.
 SPACE_FACTOR = 3
+#: Then the points still "space dependent" once more in twice those spans (96): more knots only where
+#: the estimate asks for them.
+SPACE_REFINEMENT = 2
 #: The library's interior point: once 90 % of a batch's points have finished the others get 60 more
 #: iterations (a point that needs more is re-solved from a converged neighbour, a better start than
 #: more iterations from the heuristic one).
@@ -215,11 +219,12 @@ def optimal_step_lengths(solver: GaitSolver, grid: LibraryGrid, solutions: list[
     return optimal
 
 
-def check_spaces(finer: GaitSolver, solver: GaitSolver, grid: LibraryGrid, solutions: list[GaitSolution],
+def check_spaces(stages: list[GaitSolver], solver: GaitSolver, grid: LibraryGrid, solutions: list[GaitSolution],
                  optimal: list[GaitSolution | None], say: Callable[[str], None] | None = None
                  ) -> tuple[list[GaitSolution], list[GaitSolution | None]]:
-    """The grid's points and every speed's optimal step (``solver``'s space) solved again in ``finer``'s,
-    all in one batch (:func:`biped_jax.gait.spaces.space_check`); returns them as reported there. A
+    """The grid's points and every speed's optimal step (``solver``'s space) solved again in the first of
+    ``stages``' spaces, all in one batch, those still space dependent in the next
+    (:func:`biped_jax.gait.spaces.refine_spaces`); returns them as reported there. A
     speed's optimal step is then the cheapest per metre of its free step length and its grid points
     that reached an optimum in the finer space (the step length was found in the coarser one)."""
     speeds, lengths = grid.shape
@@ -228,10 +233,9 @@ def check_spaces(finer: GaitSolver, solver: GaitSolver, grid: LibraryGrid, solut
     names = grid.names() + [optimal[i].name for i in free]
     models = models + [dataclasses.replace(models[i * lengths], step_length=np.asarray(optimal[i].step_length_m))
                        for i in free]
-    checked = spaces.space_check(finer, solver, names, models, solutions + [optimal[i] for i in free],
-                                 progress=iteration_progress(say or (lambda message: None),
-                                                             f"space check ({finer.settings.spans} knot spans)",
-                                                             finer.options.max_iterations))
+    checked = spaces.refine_spaces(stages, solver, names, models, solutions + [optimal[i] for i in free],
+                                   progress=iteration_progress(say or (lambda message: None), "space check",
+                                                               stages[0].options.max_iterations))
     points, found = checked[:len(solutions)], dict(zip(free, checked[len(solutions):]))
     best = []
     for i, s in enumerate(optimal):
@@ -323,11 +327,13 @@ def library_solvers(grid: LibraryGrid, settings: gait_problem.GaitSettings = LIB
 
 def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS,
                 rounds: int = 3, say: Callable[[str], None] | None = None, solver: GaitSolver | None = None,
-                families=LIBRARY_FAMILIES, space_factor: int = SPACE_FACTOR, finer: GaitSolver | None = None) -> dict:
+                families=LIBRARY_FAMILIES, space_factor: int = SPACE_FACTOR,
+                finer: list[GaitSolver] | None = None) -> dict:
     """Solves the library of ``grid`` in ``settings``' space from every start family of ``families``
     (:func:`library_solvers`; or with ``solver``, sharing its compiled programs, the starts solved in its
-    own space), checks every optimum in a space with ``space_factor`` times the knot spans (0: no space
-    check; or in ``finer``'s space, sharing its programs) and writes its files into ``out``; returns the
+    own space), checks every optimum in a space with ``space_factor`` times the knot spans and those
+    still space dependent in :data:`SPACE_REFINEMENT` times that (0: no space check; or in the spaces of
+    the solvers ``finer``, sharing their programs) and writes its files into ``out``; returns the
     library record (what ``library.json`` holds)."""
     checks.integer_in("rounds", rounds, 0, 20)
     checks.integer_in("space_factor", space_factor, 0, 8)
@@ -337,15 +343,17 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
     solver, coarse = (solver, None) if solver is not None else library_solvers(grid, settings)
     settings = solver.settings
     if finer is None and space_factor:
-        finer = spaces.finer_solver(solver, space_factor)
+        first = spaces.finer_solver(solver, space_factor)
+        finer = [first, spaces.finer_solver(first, SPACE_REFINEMENT)]
     out.mkdir(parents=True, exist_ok=True)
     say(f"{grid.mass_class}, {grid.power_limit:g} W: {grid.shape[0]} speeds x {grid.shape[1]} step lengths "
         f"x {len(families)} start families in one batch ({settings.spans} knot spans)")
     solutions, started = solve_grid(solver, grid, rounds, say, families, coarse)
     say("the optimal step length at every speed")
     optimal = optimal_step_lengths(solver, grid, solutions, say)
-    if finer is not None:
-        say(f"the space check: every optimum again in {finer.settings.spans} knot spans")
+    if finer:
+        say(f"the space check: every optimum again in {finer[0].settings.spans} knot spans"
+            + "".join(f", then in {f.settings.spans} where still space dependent" for f in finer[1:]))
         solutions, optimal = check_spaces(finer, solver, grid, solutions, optimal, say)
     catalogue = None
     if grid.drive is not None:
@@ -354,7 +362,7 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
     record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit,
               "drive": None if grid.drive is None else list(grid.drive), "speeds_mps": list(grid.speeds),
               "step_lengths_m": list(grid.step_lengths), "settings": dataclasses.asdict(settings),
-              "space_check": None if finer is None else {"spans": finer.settings.spans,
+              "space_check": None if not finer else {"spans": [f.settings.spans for f in finer],
                                                          "tolerance": spaces.SPACE_TOLERANCE,
                                                          "order": spaces.SPACE_ORDER},
               "families": [f.name for f in families],
