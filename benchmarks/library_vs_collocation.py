@@ -114,7 +114,8 @@ def main():
                      "gap_percent": gap, "peer_from_ours": confirmed})
         space = point.get("space") or {}
         spans = "" if space.get("error_estimate") is None else (
-            f" in {space['spans'][1]} spans (J {space['cost'][0]:.4f} in {space['spans'][0]}, "
+            f" in {space['spans'][-1]} spans (J " + " / ".join(f"{c:.4f}" for c in space["cost"][:-1])
+            + f" in {' / '.join(map(str, space['spans'][:-1]))}, "
             f"est. error {100 * space['error_estimate']:.2f} %)")
         print(f"{point['speed_mps']:5.2f} m/s, L {point['step_length_m']:5.3f} m: ours J {point['cost']:8.4f}{spans} "
               f"(4x grid {ours:8.4f}, {point['status']})  peer J {coarse['cost']:8.4f} / {fine['cost']:8.4f} "
