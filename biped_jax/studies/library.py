@@ -62,11 +62,11 @@ LIBRARY_SETTINGS = gait_problem.GaitSettings(spans=16, substeps=4)
 QUICK_SETTINGS = LIBRARY_SETTINGS
 #: The space check's knot spans, a multiple of the library's: every point's optimum solved again, warm, in
 #: 3x the spans (48, the study's space; nested, so each solve starts at the 16-span optimum) and
-#: reported there (:func:`biped_jax.gait.spaces.space_check`). Measured on the default grid (2026-12-05):
-#: the 16-span optima at 0.25 m lie 4.7-8.0 % above the collocation peer, the 48-span ones -0.2 to +0.9 %
-#: (all twelve points within 1 %); 32 spans left the four 0.25 m points 1.6-2.5 % above. One stage for
-#: every point is one compiled program: a 32-span check of all twelve (119 s) and a second stage for the
-#: points it fails would cost more than the one 48-span stage (184 s) on 2 cores.
+#: reported there (:func:`biped_jax.gait.spaces.refine_spaces`). Measured on the default grid (2026-12-05):
+#: the 16-span optima at 0.25 m lie 4.7-8.0 % above the collocation peer, the 48-span ones 0.6-2.0 %
+#: above its optimum, the 96-span ones 0.15-0.6 %; 32 spans left them 1.6-2.5 % above. The first stage
+#: takes every point (one compiled program: a 32-span check of all twelve took 119 s, the 48-span one
+#: 184 s on 2 cores), the second only those its estimate leaves space dependent.
 SPACE_FACTOR = 3
 #: Then the points still "space dependent" once more in twice those spans (96): more knots only where
 #: the estimate asks for them.
