@@ -27,6 +27,9 @@ from biped_jax.robots.specs import PLANAR_SPECS, PlanarBipedSpec
 
 # relative joint angles (H1, K1, H2, K2) = S phi
 RELATIVE_JOINTS = np.array([[0, -1, 1, 0, 0], [1, -1, 0, 0, 0], [0, 0, 1, -1, 0], [0, 0, 0, -1, 1]], dtype=float)
+# the product's joints (H1, K1, H2, K2) = RELATIVE_JOINTS @ phi times these: its hips turn about -y where the
+# peer's are torso - thigh (for the scripts that carry gaits between the two)
+JOINT_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])
 _RELABEL = [4, 3, 2, 1, 0]
 
 

@@ -39,17 +39,13 @@ def chosen_points(points: list[dict], count: int | None) -> list[dict]:
     return picked if steepest in picked else picked[:-1] + [steepest]
 
 
-#: The peer's relative joints (H1, K1, H2, K2) = RELATIVE_JOINTS @ phi are ours times these signs (our hips
-#: turn about -y); as in peer_basin.py.
-JOINT_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])
-#: Our pinned state's columns of (H1, K1, H2, K2) (biped_jax.robots.planar_biped.ACTUATED_INDEX).
-ACTUATED = [2, 1, 3, 4]
-
-
 def peer_guess(q: np.ndarray, qd: np.ndarray, u: np.ndarray, t_f: float, segments: int) -> dict:
     """Our gait (``library.npz``'s samples evenly in time: q, qd (S, 5), u (S, 4)) as a start of the peer
     on ``segments`` Hermite-Simpson segments: its link pitches phi from our stance angle (its shank
     pitch) and joints, interpolated at its knots and midpoints; the torques with the joints' signs."""
+    from collocation_peer import JOINT_SIGNS
+
+    from biped_jax.robots.planar_biped import ACTUATED_INDEX as ACTUATED
     s = np.linspace(0.0, 1.0, q.shape[0])
     nodes = np.linspace(0.0, 1.0, 2 * segments + 1)
 

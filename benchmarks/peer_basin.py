@@ -23,9 +23,8 @@ import numpy as np
 from _results import save_results
 
 # peer coordinates (absolute pitches) -> the peer's relative joints, the matrix it uses for its power limit
+from collocation_peer import JOINT_SIGNS as _JOINT_SIGNS  # noqa: E402
 from collocation_peer import RELATIVE_JOINTS as _PEER_TO_JOINTS  # noqa: E402
-
-_JOINT_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0])  # our hips turn about -y where the peer's are torso - thigh
 
 
 def fitted_start(peer: dict, settings) -> np.ndarray:

@@ -67,12 +67,14 @@ def finer_solver(solver: GaitSolver, factor: int) -> GaitSolver:
                       check_refinement=solver.check_refinement)
 
 
-def space_record(coarse: GaitSolution, fine: GaitSolution, ratio: float, tolerance: float) -> dict:
-    """The space check of one gait: J in both spaces, the relative change (fine / coarse - 1), the estimated
+def space_record(coarse: GaitSolution, fine: GaitSolution, spans: tuple[int, int], tolerance: float) -> dict:
+    """The space check of one gait, solved in ``spans`` (coarse, fine) knot spans: J in both spaces, the
+    relative change (fine / coarse - 1), the estimated
     relative error of the fine space's J and whether it is within ``tolerance`` (None where the fine
     solve did not end in an optimum, or ended in one dearer than the coarse space's by more than
     :data:`DEARER`: then nothing is known of the space's error)."""
-    record = {"spans": None, "cost": [coarse.cost, fine.cost], "status_finer": fine.status,
+    ratio = spans[1] / spans[0]
+    record = {"spans": list(spans), "cost": [coarse.cost, fine.cost], "status_finer": fine.status,
               "change": fine.cost / coarse.cost - 1.0, "error_estimate": None, "passed": None}
     if fine.status in CHECKED and record["change"] > DEARER:
         record["status_finer"] = f"{fine.status} at a dearer optimum"
@@ -101,8 +103,8 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
                          "be as many")
     picked = [b for b, s in enumerate(solutions) if s.status in statuses]
     out = list(solutions)
-    for b, solution in enumerate(solutions):
-        if b not in picked:
+    for solution in solutions:
+        if solution.status not in statuses:
             solution.space = {"skipped": solution.status}
     if not picked:
         return out
@@ -110,10 +112,9 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
                    for b in picked])
     again = finer.solve([names[b] for b in picked], [models[b] for b in picked], x0=jnp.asarray(x0),
                         progress=progress)
-    ratio = finer.settings.spans / source.settings.spans
+    spans = (source.settings.spans, finer.settings.spans)
     for b, fine in zip(picked, again):
-        record = {**space_record(solutions[b], fine, ratio, tolerance),
-                  "spans": [source.settings.spans, finer.settings.spans]}
+        record = space_record(solutions[b], fine, spans, tolerance)
         kept = fine if record["passed"] is not None else solutions[b]
         if kept is fine:
             fine.starts = solutions[b].starts
