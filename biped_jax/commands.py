@@ -300,6 +300,12 @@ def _walk_words(check: dict | None) -> str:
             + (", walks indefinitely" if walk is None else f", walks {walk / 60:.1f} min from 25 C"))
 
 
+def _spans_used(points: list[dict]) -> str:
+    """How many library points are reported in each space ("8 in 48, 3 in 96 knot spans")."""
+    spans = [p["space"]["spans"][-1] for p in points if p["space"] and "spans" in p["space"]]
+    return ", ".join(f"{spans.count(n)} in {n}" for n in sorted(set(spans))) + " knot spans"
+
+
 def run_library(args) -> int:
     """A gait library with a live progress line; see :mod:`biped_jax.studies.library`."""
     from biped_jax.studies import library as library_study
@@ -316,7 +322,7 @@ def run_library(args) -> int:
     console.print(f"{grid.mass_class}, {grid.power_limit:g} W: {converged} of {len(points)} grid points converged, "
                   f"{sum(bool(p['refinement_passed']) for p in points)} kept on the 4x grid"
                   + ("" if record["space_check"] is None else
-                     f", reported in {' or '.join(map(str, record['space_check']['spans']))} knot spans, "
+                     f", reported {_spans_used(points)}, "
                      f"{sum(bool((p['space'] or {}).get('passed')) for p in points)} with the space's estimated "
                      f"error within {100 * record['space_check']['tolerance']:g} %"))
     for best in record["optimal_step"]:

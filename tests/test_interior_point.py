@@ -388,36 +388,43 @@ def test_a_free_step_length_reaches_the_fixed_step_optimum_at_its_length(interio
 
 def test_more_knots_only_where_the_space_check_asks(interior_gaits):
     """``refine_spaces``: every gait into the first finer space, then only those it left "space
-    dependent" (estimate |J - J_finer| / (factor - 1) / J_finer above 1 %) into the next; each gait's
+    dependent" (estimate |J - J_finer| / (factor - 1) / J_finer above 1 %), or grid dependent on the
+    power limit alone (held by solving again only in the last stage), into the next; each gait's
     record lists every space it was solved in. The stages' solves are stand-ins with set optima (the
     real solve is the library test's), the projections and verdicts the real ones."""
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait import spaces
     solver, models, solutions = interior_gaits
-    # the relative change of J in each stage's space: M1 passes at once, M2 in the second, M3 never
-    changes = {8: {"M1": -0.004, "M2": -0.05, "M3": -0.05, "M4": -0.001}, 16: {"M2": -0.004, "M3": -0.02}}
+    # the relative change of J in each stage's space: M1 passes at once, M2 in the second, M3 never; M4
+    # passes at once but its power rises above the limit between the first stage's samples (untightened)
+    changes = {8: {"M1": -0.004, "M2": -0.05, "M3": -0.05, "M4": -0.001},
+               16: {"M2": -0.004, "M3": -0.02, "M4": -0.001}}
     calls = []
 
     class Stage:
         def __init__(self, spans):
             self.settings = dataclasses.replace(solver.settings, spans=spans, segments=spans)
 
-        def solve(self, names, models_, x0, progress=None):
-            calls.append((self.settings.spans, list(names)))
+        def solve(self, names, models_, x0, progress=None, tightening=None):
+            calls.append((self.settings.spans, list(names), tightening))
             assert x0.shape == (len(names), self.settings.size)
             given = {s.name: s for s in solutions}
             # J in this space: the given J with every stage's change up to this one
             factor = {n: np.prod([1 + c[n] for spans, c in changes.items() if spans <= self.settings.spans])
                       for n in names}
-            return [dataclasses.replace(given[n], x=np.asarray(x), status="converged", space={},
-                                        cost=given[n].cost * factor[n]) for n, x in zip(names, x0)]
+            converged = {"status": "converged", "refinement": {"passed": True, "failed": []}}
+            power = {"status": "grid dependent", "refinement": {"passed": False, "failed": ["power_limit"]}}
+            return [dataclasses.replace(given[n], x=np.asarray(x), space={}, cost=given[n].cost * factor[n],
+                                        **(power if n == "M4" and tightening == 0 else converged))
+                    for n, x in zip(names, x0)]
 
     stages = [Stage(8), Stage(16)]
     out = spaces.refine_spaces(stages, solver, [s.name for s in solutions], models,
                                [dataclasses.replace(s, space={}) for s in solutions])
-    assert calls == [(8, ["M1", "M2", "M3", "M4"]), (16, ["M2", "M3"])]
+    # only the last stage holds the power limit by solving again; M4 goes on to it for its power alone
+    assert calls == [(8, ["M1", "M2", "M3", "M4"], 0), (16, ["M2", "M3", "M4"], None)]
     assert [s.status for s in out] == ["converged", "converged", spaces.SPACE_DEPENDENT, "converged"]
-    assert [s.space["spans"] for s in out] == [[4, 8], [4, 8, 16], [4, 8, 16], [4, 8]]
+    assert [s.space["spans"] for s in out] == [[4, 8], [4, 8, 16], [4, 8, 16], [4, 8, 16]]
     for s, given in zip(out, solutions):
         assert s.space["cost"][0] == given.cost and s.space["cost"][-1] == s.cost
         assert s.space["error_estimate"] == pytest.approx(abs(s.space["cost"][-2] - s.cost) / s.cost)

@@ -86,14 +86,16 @@ def space_record(coarse: GaitSolution, fine: GaitSolution, spans: tuple[int, int
 
 def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models: list[gait_problem.GaitModel],
                 solutions: list[GaitSolution], tolerance: float = SPACE_TOLERANCE,
-                progress: Callable[[int, dict], None] | None = None, statuses: tuple = CHECKED) -> list[GaitSolution]:
+                progress: Callable[[int, dict], None] | None = None, statuses: tuple = CHECKED,
+                tightening: int | None = None) -> list[GaitSolution]:
     """Every gait of ``solutions`` (solved in ``source``'s space for ``models``) that converged, on its grid
     or beyond it, carried into ``finer``'s space (:func:`biped_jax.gait.problem.project`) and solved
     there warm, all in one batch. Returns per gait the finer space's solution where that solve ended in
     an optimum (converged or grid dependent; :data:`SPACE_DEPENDENT` where it converged but its estimated
     error exceeds ``tolerance``), else the given one; each with ``space`` (:func:`space_record`, with
     "spans": [coarse, fine]; ``{"skipped": status}`` for a gait not checked) and the given ``starts``.
-    ``statuses``: the statuses of the gaits checked (the others are returned as given)."""
+    ``statuses``: the statuses of the gaits checked (the others are returned as given); ``tightening``:
+    the finer solve's rounds holding the power limit between samples (:meth:`GaitSolver.solve`)."""
     checks.number_in("tolerance", tolerance, 0.0, 1.0, "(a fraction of J)")
     if finer.settings.spans <= source.settings.spans:
         raise ValueError(f"the finer space has {finer.settings.spans} knot spans, the gaits' {source.settings.spans}: "
@@ -111,7 +113,7 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
     x0 = np.stack([gait_problem.project(solutions[b].x, source.settings, finer.settings, solutions[b].trajectory)
                    for b in picked])
     again = finer.solve([names[b] for b in picked], [models[b] for b in picked], x0=jnp.asarray(x0),
-                        progress=progress)
+                        progress=progress, tightening=tightening)
     spans = (source.settings.spans, finer.settings.spans)
     for b, fine in zip(picked, again):
         record = space_record(solutions[b], fine, spans, tolerance)
@@ -125,24 +127,40 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
     return out
 
 
+def goes_on(solution: GaitSolution) -> bool:
+    """Whether a gait of a space check's stage goes on to the next, finer stage: its space's estimated
+    error exceeds the tolerance (:data:`SPACE_DEPENDENT`), or its power rises above the limit between
+    the samples and nothing else fails (a stage before the last holds the power limit by no extra
+    solve: the next one, with twice the samples, does)."""
+    return solution.status == SPACE_DEPENDENT or (
+        solution.status == verdict.GRID_DEPENDENT and solution.refinement.get("failed") == ["power_limit"])
+
+
 def refine_spaces(stages: list[GaitSolver], source: GaitSolver, names: list[str],
                   models: list[gait_problem.GaitModel], solutions: list[GaitSolution],
                   tolerance: float = SPACE_TOLERANCE, progress: Callable[[int, dict], None] | None = None
                   ) -> list[GaitSolution]:
     """More knots where a gait needs them: :func:`space_check` into ``stages[0]``'s space, then the gaits
-    still :data:`SPACE_DEPENDENT` into ``stages[1]``'s (each stage's spans more than the last's), and so
-    on. Each gait's ``space`` lists every space it was solved in ("spans", "cost"), the last pair's
-    change and estimated error."""
+    that :func:`goes_on` into ``stages[1]``'s (each stage's spans more than the last's), and so on. Only
+    the last stage holds the power limit between samples by solving again
+    (:meth:`GaitSolver.solve`'s tightening): in the library's default grid that round re-solved the
+    first stage's whole batch for one gait that went on to the second stage anyway (64 s of 2 cores).
+    Each gait's ``space`` lists every space it was solved in ("spans", "cost"), the last pair's change
+    and estimated error."""
     out = list(solutions)
     previous = source
     for k, stage in enumerate(stages):
-        picked = list(range(len(out))) if k == 0 else [b for b, s in enumerate(out) if s.status == SPACE_DEPENDENT]
+        last = k == len(stages) - 1
+        # after the first stage, the gaits of the last stage's space that go on
+        picked = list(range(len(out))) if k == 0 else [
+            b for b, s in enumerate(out) if goes_on(s) and np.size(s.x) == previous.settings.size]
         if not picked:
             break
         before = [out[b].space for b in picked]
         checked = space_check(stage, previous, [names[b] for b in picked], [models[b] for b in picked],
                               [out[b] for b in picked], tolerance, progress,
-                              CHECKED if k == 0 else (SPACE_DEPENDENT,))
+                              CHECKED if k == 0 else (SPACE_DEPENDENT, verdict.GRID_DEPENDENT),
+                              tightening=None if last else 0)
         for b, solution, earlier in zip(picked, checked, before):
             if k and "spans" in earlier and solution.space is not earlier:
                 solution.space = {**solution.space, "spans": earlier["spans"] + solution.space["spans"][1:],

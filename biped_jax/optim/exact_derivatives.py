@@ -58,6 +58,13 @@ def dense_structure(size: int, constraints: int) -> Structure:
                      hessian_pattern=jnp.ones((size, size), bool))
 
 
+def unused_structure(size: int) -> Structure:
+    """No colouring (zero directions) for a problem of ``size`` columns whose ``local`` split computes
+    its derivatives (:func:`derivatives` then never reads the structure)."""
+    return Structure(directions=jnp.zeros((0, size)), colour=jnp.zeros(size, jnp.int32),
+                     jacobian_pattern=jnp.zeros((0, size), bool), hessian_pattern=jnp.zeros((0, size), bool))
+
+
 def probe_structure(problem: nlp.ConstrainedProblem, x, params, padding: int = sparsity.COLOUR_PADDING,
                     linear_columns=()) -> Structure:
     """The colouring of ``problem`` at one point ``x`` (n,) with one problem's ``params``: which rows
