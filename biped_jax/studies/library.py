@@ -68,13 +68,15 @@ QUICK_SETTINGS = LIBRARY_SETTINGS
 #: takes every point (one compiled program: a 32-span check of all twelve took 119 s, the 48-span one
 #: 184 s on 2 cores), the second only those its estimate leaves space dependent.
 SPACE_FACTOR = 3
-#: Then the points still "space dependent" once more in twice those spans (96), and those still so in
-#: twice that (192): more knots only where the estimate asks for them. At 0.3 m/s, 0.25 m (a slow step
-#: of 0.83 s) 96 spans were 0.5 % above the collocation peer's optimum on 320 segments, but the
-#: estimate from 48 to 96 spans said 1.1-1.5 % (order 1; the order there is below 1 from 16 to 48).
+#: Then the points still "space dependent" once more in twice those spans (96): more knots only where
+#: the estimate asks for them.
 SPACE_REFINEMENT = 2
-#: How many times :data:`SPACE_REFINEMENT` is applied after the first finer space.
-SPACE_REFINEMENTS = 2
+#: How many times :data:`SPACE_REFINEMENT` is applied after the first finer space. Once: at 0.3 m/s,
+#: 0.25 m (a slow step of 0.83 s), the one default point still space dependent in 96 spans (estimate
+#: 1.1 %, though 0.5 % above the collocation peer's optimum on 320 segments), a third stage in 192
+#: spans went from the 96-span optimum to a dearer one (J 5.4373 against 5.1592) and cost 74 s of the
+#: default library's 492 s (2-core CPU, 2026-12-05).
+SPACE_REFINEMENTS = 1
 #: The library's interior point: once 90 % of a batch's points have finished the others get 60 more
 #: iterations (a point that needs more is re-solved from a converged neighbour, a better start than
 #: more iterations from the heuristic one).
