@@ -92,9 +92,9 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
     or beyond it, carried into ``finer``'s space (:func:`biped_jax.gait.problem.project`) and solved
     there warm, all in one batch. Returns per gait the finer space's solution where that solve ended in
     an optimum (converged or grid dependent; :data:`SPACE_DEPENDENT` where it converged but its estimated
-    error exceeds ``tolerance``), else the given one; each with ``space`` (:func:`space_record`, with
-    "spans": [coarse, fine]; ``{"skipped": status}`` for a gait not checked) and the given ``starts``.
-    ``statuses``: the statuses of the gaits checked (the others are returned as given); ``tightening``:
+    error exceeds ``tolerance``), else a copy of the given one; each with ``space`` (:func:`space_record`,
+    with "spans": [coarse, fine]; ``{"skipped": status}`` for a gait not checked) and the given
+    ``starts``. ``statuses``: the statuses of the gaits checked (the others are returned as copies); ``tightening``:
     the finer solve's rounds holding the power limit between samples (:meth:`GaitSolver.solve`)."""
     checks.number_in("tolerance", tolerance, 0.0, 1.0, "(a fraction of J)")
     if finer.settings.spans <= source.settings.spans:
@@ -104,10 +104,8 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
         raise ValueError(f"names ({len(names)}), models ({len(models)}) and solutions ({len(solutions)}) must "
                          "be as many")
     picked = [b for b, s in enumerate(solutions) if s.status in statuses]
-    out = list(solutions)
-    for solution in solutions:
-        if solution.status not in statuses:
-            solution.space = {"skipped": solution.status}
+    # copies: the caller's solutions keep their own records
+    out = [s if s.status in statuses else dataclasses.replace(s, space={"skipped": s.status}) for s in solutions]
     if not picked:
         return out
     x0 = np.stack([gait_problem.project(solutions[b].x, source.settings, finer.settings, solutions[b].trajectory)
@@ -117,13 +115,12 @@ def space_check(finer: GaitSolver, source: GaitSolver, names: list[str], models:
     spans = (source.settings.spans, finer.settings.spans)
     for b, fine in zip(picked, again):
         record = space_record(solutions[b], fine, spans, tolerance)
-        kept = fine if record["passed"] is not None else solutions[b]
-        if kept is fine:
-            fine.starts = solutions[b].starts
-            if fine.status == nlp.CONVERGED and not record["passed"]:
-                fine.status = SPACE_DEPENDENT
-        kept.space = record
-        out[b] = kept
+        if record["passed"] is None:  # the finer solve found no (cheaper) optimum: the given gait stays
+            out[b] = dataclasses.replace(solutions[b], space=record)
+            continue
+        space_dependent = fine.status == nlp.CONVERGED and not record["passed"]
+        out[b] = dataclasses.replace(fine, starts=solutions[b].starts, space=record,
+                                     status=SPACE_DEPENDENT if space_dependent else fine.status)
     return out
 
 
