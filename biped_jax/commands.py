@@ -276,8 +276,7 @@ def check_library(args):
     from biped_jax.studies import library as library_study
     configure_jax()
     try:
-        if args.space_factor == 1:
-            raise ValueError("--space-factor must be 0 (no space check) or at least 2, got 1")
+        library_study.check_space_factor(args.space_factor, "--space-factor")
         drive = {"drive": args.drive, "supply_voltage": args.supply_voltage}
         if args.quick:
             return (library_study.LibraryGrid(args.mass_class, library_study.QUICK_SPEEDS,

@@ -448,7 +448,7 @@ def test_a_gait_library_over_speeds_and_step_lengths(interior_gaits, tmp_path):
     # one start family in the solver's own space: the gait tests' program (a batch of four)
     family = library.LIBRARY_FAMILIES[0]
     finer = spaces.finer_solver(solver, 2)
-    record = library.run_library(tmp_path, grid, solver=solver, families=(family,), finer=[finer])
+    record = library.run_library(tmp_path, grid, solver=solver, families=(family,), space_solvers=[finer])
     points = record["points"]
     assert record["space_check"] == {"spans": [8], "tolerance": spaces.SPACE_TOLERANCE, "order": spaces.SPACE_ORDER}
     assert [p["status"] for p in points] == [spaces.SPACE_DEPENDENT] * 4, [p["status"] for p in points]

@@ -359,7 +359,8 @@ class GaitSolver:
                                                          "power_limit": np.maximum(peak - limits, 0.0)})
         at_limit = dataclasses.replace(batch, power_limit=jnp.asarray(limits, dtype=jnp.result_type(float)))
         # J (not minimised here) is the re-simulated gait's; it does not depend on the limit
-        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x), cost_of_rollout=True, fine=fine)
+        solutions = self._report(names, at_limit, dataclasses.replace(result, x=x), cost_of_rollout=True,
+                                 checked=(None, fine))
         for solution, limit in zip(solutions, solve_grid):
             solution.refinement["solve_grid_limit_W"] = float(limit)
         return solutions
@@ -513,16 +514,14 @@ class GaitSolver:
             history=[row for r in stages for row in r.history])
 
     def _report(self, names: list[str], batch: gait_problem.GaitModel, result: nlp.SolveResult,
-                cost_of_rollout: bool = False, fine: verdict.GridCheck | None = None,
-                checked: tuple | None = None) -> list[GaitSolution]:
+                cost_of_rollout: bool = False, checked: tuple = (None, None)) -> list[GaitSolution]:
         """GaitSolutions of a solver result on the models ``batch`` (leading dimension B): the batch
         re-simulated and checked on the refined grid by one program per grid, classified, then cut
         into one solution per problem. ``cost_of_rollout``: J is the re-simulated gait's, not the
-        solver's objective. ``fine``: the refined grid's check of ``result.x`` when the caller has it;
-        ``checked``: (the solve grid's, the refined grid's) when it has both."""
-        coarse = None
-        if checked is not None:
-            coarse, fine = checked
+        solver's objective. ``checked``: (the solve grid's, the refined grid's)
+        :class:`~biped_jax.gait.verdict.GridCheck` of ``result.x`` where the caller has them (None:
+        made here)."""
+        coarse, fine = checked
         if coarse is None:
             coarse = self.check(result.x, batch)
         if fine is None and self.check_refinement:

@@ -318,6 +318,14 @@ def indefinite_walk(optimal_step: list[dict | None]) -> dict:
     return {"speeds_mps": lasting, "up_to_mps": up_to, "not_at_mps": min(above) if above else None}
 
 
+def check_space_factor(space_factor, name: str = "space_factor") -> None:
+    """Raises ValueError naming ``name`` unless ``space_factor`` is 0 (no space check) or an integer in
+    [2, 8] (a finer space needs more knot spans)."""
+    checks.integer_in(name, space_factor, 0, 8)
+    if space_factor == 1:
+        raise ValueError(f"{name} must be 0 (no space check) or at least 2, got 1")
+
+
 def library_solvers(grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS
                     ) -> tuple[GaitSolver, GaitSolver]:
     """(the library's solver in ``settings``' space, the starts' in the 4x coarser one), the drives' gear
@@ -334,34 +342,32 @@ def library_solvers(grid: LibraryGrid, settings: gait_problem.GaitSettings = LIB
 def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSettings = LIBRARY_SETTINGS,
                 rounds: int = 3, say: Callable[[str], None] | None = None, solver: GaitSolver | None = None,
                 families=LIBRARY_FAMILIES, space_factor: int = SPACE_FACTOR,
-                finer: list[GaitSolver] | None = None) -> dict:
+                space_solvers: list[GaitSolver] | None = None) -> dict:
     """Solves the library of ``grid`` in ``settings``' space from every start family of ``families``
     (:func:`library_solvers`; or with ``solver``, sharing its compiled programs, the starts solved in its
     own space), checks every optimum in a space with ``space_factor`` times the knot spans and those
     still space dependent in :data:`SPACE_REFINEMENT` times that, :data:`SPACE_REFINEMENTS` times (0: no
-    space check; or in the spaces of the solvers ``finer``, sharing their programs) and writes its files
-    into ``out``; returns the library record (what ``library.json`` holds)."""
+    space check; or in the spaces of the solvers ``space_solvers``, sharing their programs) and writes
+    its files into ``out``; returns the library record (what ``library.json`` holds)."""
     checks.integer_in("rounds", rounds, 0, 20)
-    checks.integer_in("space_factor", space_factor, 0, 8)
-    if space_factor == 1:
-        raise ValueError("space_factor must be 0 (no space check) or at least 2, got 1")
+    check_space_factor(space_factor)
     say = say or (lambda message: None)
     solver, coarse = (solver, None) if solver is not None else library_solvers(grid, settings)
     settings = solver.settings
-    if finer is None and space_factor:
-        finer = [spaces.finer_solver(solver, space_factor)]
+    if space_solvers is None and space_factor:
+        space_solvers = [spaces.finer_solver(solver, space_factor)]
         for _ in range(SPACE_REFINEMENTS):
-            finer.append(spaces.finer_solver(finer[-1], SPACE_REFINEMENT))
+            space_solvers.append(spaces.finer_solver(space_solvers[-1], SPACE_REFINEMENT))
     out.mkdir(parents=True, exist_ok=True)
     say(f"{grid.mass_class}, {grid.power_limit:g} W: {grid.shape[0]} speeds x {grid.shape[1]} step lengths "
         f"x {len(families)} start families in one batch ({settings.spans} knot spans)")
     solutions, started = solve_grid(solver, grid, rounds, say, families, coarse)
     say("the optimal step length at every speed")
     optimal = optimal_step_lengths(solver, grid, solutions, say)
-    if finer:
-        say(f"the space check: every optimum again in {finer[0].settings.spans} knot spans"
-            + "".join(f", then in {f.settings.spans} where still space dependent" for f in finer[1:]))
-        solutions, optimal = check_spaces(finer, solver, grid, solutions, optimal, say)
+    if space_solvers:
+        say(f"the space check: every optimum again in {space_solvers[0].settings.spans} knot spans"
+            + "".join(f", then in {f.settings.spans} where still space dependent" for f in space_solvers[1:]))
+        solutions, optimal = check_spaces(space_solvers, solver, grid, solutions, optimal, say)
     catalogue = None
     if grid.drive is not None:
         from biped_jax.drives import model as drive_model
@@ -369,7 +375,7 @@ def run_library(out: Path, grid: LibraryGrid, settings: gait_problem.GaitSetting
     record = {"mass_class": grid.mass_class, "power_limit_W": grid.power_limit,
               "drive": None if grid.drive is None else list(grid.drive), "speeds_mps": list(grid.speeds),
               "step_lengths_m": list(grid.step_lengths), "settings": dataclasses.asdict(settings),
-              "space_check": None if not finer else {"spans": [f.settings.spans for f in finer],
+              "space_check": None if not space_solvers else {"spans": [f.settings.spans for f in space_solvers],
                                                          "tolerance": spaces.SPACE_TOLERANCE,
                                                          "order": spaces.SPACE_ORDER},
               "families": [f.name for f in families],
