@@ -162,13 +162,15 @@ def joint_verdicts(motors, heads, solution, supply_voltage: float, catalogue: dr
     return verdicts
 
 
-def drive_summary(motor: str, gearhead: str, solution, supply_voltage: float,
+def drive_summary(motor: str, gearhead: str, solution, supply_voltage: float | None = None,
                   catalogue: drive_model.Catalogue | None = None) -> dict:
-    """One catalogue motor and gearhead at every joint checked on a solved gait (:func:`joint_verdicts`):
-    {"passes_catalogue_check", "passes_without_thermal", "reasons" (the failed joints' first failed
-    checks), "walk_time_s" (the joint that heats most; None: every joint walks indefinitely), "joints"}."""
-    joints = joint_verdicts((motor,) * 4, (gearhead,) * 4, solution, supply_voltage,
-                            catalogue or drive_model.load_catalogue())
+    """One catalogue motor and gearhead at every joint checked on a solved gait (:func:`joint_verdicts`)
+    at ``supply_voltage`` V (None: the catalogue's): {"passes_catalogue_check", "passes_without_thermal",
+    "reasons" (the failed joints' first failed checks), "walk_time_s" (the joint that heats most; None:
+    every joint walks indefinitely), "joints"}."""
+    catalogue = catalogue or drive_model.load_catalogue()
+    voltage = catalogue.supply_voltage if supply_voltage is None else float(supply_voltage)
+    joints = joint_verdicts((motor,) * 4, (gearhead,) * 4, solution, voltage, catalogue)
     times = [j["walk_time_s"] for j in joints if j["walk_time_s"] is not None]
     return {"passes_catalogue_check": all(j["feasible"] for j in joints),
             "passes_without_thermal": all(j["feasible_without_thermal"] for j in joints),

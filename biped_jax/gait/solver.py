@@ -473,7 +473,7 @@ class GaitSolver:
             x, models = gait_of(result)
             coarse, fine = self.check(x, models), self.check(x, models, refined=True)
             records = verdict.refinement_records(coarse.energy, fine, own_limit, self.refined_settings.steps)
-            tighten = np.array([s == nlp.CONVERGED and r["failed"] == ["power_limit"]
+            tighten = np.array([s == nlp.CONVERGED and verdict.power_alone(r)
                                 for s, r in zip(result.status, records)])
             if round_ == rounds or not tighten.any():
                 break

@@ -130,7 +130,7 @@ def goes_on(solution: GaitSolution) -> bool:
     the samples and nothing else fails (a stage before the last holds the power limit by no extra
     solve: the next one, with twice the samples, does)."""
     return solution.status == SPACE_DEPENDENT or (
-        solution.status == verdict.GRID_DEPENDENT and solution.refinement.get("failed") == ["power_limit"])
+        solution.status == verdict.GRID_DEPENDENT and verdict.power_alone(solution.refinement))
 
 
 def refine_spaces(stages: list[GaitSolver], source: GaitSolver, names: list[str],

@@ -77,6 +77,12 @@ def rollout_check(x, model: gait_problem.GaitModel, biped, settings: gait_proble
                      finite)
 
 
+def power_alone(record: dict) -> bool:
+    """Whether a refinement record (:func:`refinement_records`) failed on the power limit and nothing
+    else: a gait that holds the limit on its grid and exceeds it between the samples."""
+    return record.get("failed") == ["power_limit"]
+
+
 def refinement_records(coarse_cost, fine: GridCheck, power_limit, steps: int) -> list[dict]:
     """The refinement check of a batch of B solutions: ``coarse_cost`` (B,) J on the solve grid,
     ``fine`` their :class:`GridCheck` on the grid ``steps`` samples long (numpy, leading dimension B),

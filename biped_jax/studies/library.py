@@ -296,11 +296,8 @@ def point_record(solution: GaitSolution, started: str, grid: LibraryGrid | None 
               "refined_cost": solution.refinement.get("cost"), "started": started, "starts": solution.starts,
               "space": solution.space or None, **demand(solution)}
     if grid is not None and grid.drive is not None:
-        from biped_jax.drives import model as drive_model
         from biped_jax.drives import selection
-        catalogue = catalogue or drive_model.load_catalogue()
-        voltage = catalogue.supply_voltage if grid.supply_voltage is None else grid.supply_voltage
-        summary = selection.drive_summary(*grid.drive, solution, voltage, catalogue)
+        summary = selection.drive_summary(*grid.drive, solution, grid.supply_voltage, catalogue)
         record["drive_check"] = {k: summary[k] for k in ("passes_catalogue_check", "reasons", "walk_time_s")}
     return record
 

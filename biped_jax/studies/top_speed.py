@@ -96,8 +96,7 @@ def problems(mass_classes=MASS_CLASSES, power_limits=POWER_LIMITS, drives=DRIVES
 def _drive_check(problem: TopSpeedProblem, solution: GaitSolution, catalogue) -> dict:
     """The catalogue check per joint of the problem's drive on its fastest gait, and how long it walks."""
     from biped_jax.drives import selection
-    voltage = catalogue.supply_voltage if problem.supply_voltage is None else problem.supply_voltage
-    summary = selection.drive_summary(*problem.drive, solution, float(voltage), catalogue)
+    summary = selection.drive_summary(*problem.drive, solution, problem.supply_voltage, catalogue)
     return {k: summary[k] for k in ("passes_catalogue_check", "passes_without_thermal", "walk_time_s", "joints")}
 
 
