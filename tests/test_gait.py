@@ -303,6 +303,18 @@ def test_spaces_of_many_graded_spans_lay_out_their_segments():
         assert data["basis_grid"].shape[:3] == (spans, 3, SETTINGS.substeps + 1)
 
 
+def test_the_coarse_space_halves_the_steps_per_span_where_they_stay_even():
+    """The study's starts stage runs on 12 spans x 2 steps under the study's 48 x 4; its smallest power
+    limit's first stage and a grid whose half would be odd keep their steps per span."""
+    from biped_jax.studies import paper
+    study = paper.study_solvers()
+    assert (study.coarse.settings.spans, study.coarse.settings.substeps, study.coarse.settings.segments) == (12, 2, 12)
+    assert (study.coarse_power.settings.spans, study.coarse_power.settings.substeps) == (12, 4)
+    assert [paper.coarse_substeps(dataclasses.replace(SETTINGS, substeps=k)) for k in (2, 4, 6, 8)] == [2, 2, 6, 4]
+    with pytest.raises(ValueError, match="substeps"):
+        multistart.coarse_settings(paper.STUDY_SETTINGS, substeps=3)
+
+
 @pytest.mark.slow
 def test_projection_into_a_finer_space_keeps_the_curve(biped12):
     """Continuation: a coarse-space curve carried into a space with nested knots is the same curve."""

@@ -18,13 +18,15 @@ from biped_jax.gait.solver import GaitSolution, GaitSolver
 from biped_jax.optim import nlp
 
 
-def coarse_settings(settings: gait_problem.GaitSettings, factor: int = 4) -> gait_problem.GaitSettings:
+def coarse_settings(settings: gait_problem.GaitSettings, factor: int = 4,
+                    substeps: int | None = None) -> gait_problem.GaitSettings:
     """The reference space ``factor`` times coarser (fewer knot spans, the same grading, so the fine
-    space contains it when ``spans`` is a multiple of ``factor``), on a grid with as many steps per
-    span, shot in as many segments as divide both (multiple shooting kept where it fits): the
-    continuation's first stage."""
+    space contains it when ``spans`` is a multiple of ``factor``), on a grid with ``substeps`` steps per
+    span (None: as many as ``settings``), shot in as many segments as divide both (multiple shooting
+    kept where it fits): the continuation's first stage."""
     spans = max(1, settings.spans // factor)
-    return dataclasses.replace(settings, spans=spans, segments=math.gcd(spans, settings.segments))
+    return dataclasses.replace(settings, spans=spans, segments=math.gcd(spans, settings.segments),
+                               substeps=settings.substeps if substeps is None else substeps)
 
 
 def solve_multistart(fine: GaitSolver, names: list[str], models: list[gait_problem.GaitModel],

@@ -43,6 +43,10 @@ class LocalProblem:
         is in the split's rows: the S segments' rows flattened (segment-major), then the boundary's.
       linear_objective: None: f = r . r; a column index i: f = x[i] + energy_weight(params) r . r.
       energy_weight: ``params -> weight`` of r . r beside a linear objective (None: 0, the rows r unused).
+      linear_segment_columns: positions in a segment's columns (of ``segment_columns``' second axis) that
+        its rows depend on linearly and that meet no other column in their second derivatives (the next
+        shooting node, which enters only the defect end - node): their Hessian rows are zero, so they
+        take no direction of the second-order pass, only a forward one for their Jacobian columns.
     """
 
     segment: Callable[[jax.Array, Any, Any], tuple]
@@ -55,11 +59,18 @@ class LocalProblem:
     order_g: np.ndarray
     linear_objective: int | None = None
     energy_weight: Callable[[Any], Any] | None = None
+    linear_segment_columns: tuple = ()
+
+    @property
+    def curved_segment_columns(self) -> np.ndarray:
+        """Positions in a segment's columns that take a direction of the second-order pass."""
+        return np.setdiff1d(np.arange(self.segment_columns.shape[1]), np.asarray(self.linear_segment_columns, int))
 
     @property
     def directions(self) -> int:
-        """Directions per derivative pass: each segment's columns (the boundary's run alongside)."""
-        return int(self.segment_columns.shape[1])
+        """Second-order directions per derivative pass: each segment's curved columns (the boundary's run
+        alongside)."""
+        return int(self.curved_segment_columns.shape[0])
 
 
 def _lifted(order: np.ndarray, values, size: int):
@@ -107,10 +118,22 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
             return residual_weight * (r @ r) + y_part @ h + z_part @ g, (r, h, g)
         return value
 
+    curved = local.curved_segment_columns
+    linear = np.asarray(local.linear_segment_columns, int)
+    unit = jnp.eye(width, dtype=x.dtype)
+
     def one_segment(columns, data, y_k, z_k):
         point = padded[columns]
         function = lambda p, d: local.segment(p, d, params)  # noqa: E731
-        return _second_order(lagrangian(function, y_k, z_k, data), point, jnp.eye(width, dtype=x.dtype))
+        (rows, grad), ((_, jh, jg), hess) = _second_order(lagrangian(function, y_k, z_k, data), point, unit[curved])
+        # hess (c, l): the curved columns' rows of the block (the linear columns' are zero)
+        hess = jnp.zeros((width, width), x.dtype).at[curved].set(hess)
+        if linear.size:
+            _, (_, jh_linear, jg_linear) = jax.vmap(lambda d: jax.jvp(lambda p: function(p, data), (point,), (d,)))(
+                unit[linear])
+            jh = jnp.zeros((width, jh.shape[1]), x.dtype).at[curved].set(jh).at[linear].set(jh_linear)
+            jg = jnp.zeros((width, jg.shape[1]), x.dtype).at[curved].set(jg).at[linear].set(jg_linear)
+        return (rows, grad), ((None, jh, jg), hess)
 
     (rows_k, grad_k), ((_, jh_k, jg_k), hess_k) = jax.vmap(one_segment)(
         jnp.asarray(local.segment_columns), local.segment_data, y_split[:segments * b].reshape(segments, b),
