@@ -130,24 +130,28 @@ QUICK_STAMP = ("QUICK LOOK (biped-jax reproduce --quick): 8 knot spans, 3 start 
                "study's result")
 
 #: The batched interior point (:mod:`biped_jax.optim.interior_point`) in every stage: from the heuristic
-#: starts a cold start (mu = 0.1), and warm from a nearby optimum (the coarse space's carried into the
-#: study's, the paper's limit's at 20 W, a gait at its own limit for the smallest limit) from mu = 1e-3:
-#: measured on M4 at 20 W from its 40 W optimum in 48 spans, 80 iterations from 0.1, 52 from 1e-3, both
-#: to J = 6.97806. A batch runs until its slowest problem stops, so the coarse stage (which only chooses
-#: starts; every family converged within 65 iterations on M2) is capped at 80 iterations. The smallest
-#: power limit (:func:`minimal_power_limits`): each stage of its continuation at most 150 iterations; in
-#: the study's space, from the coarse space's gait at 1.02 times its limit, from mu = 1e-5 (the barrier's
-#: centring moves t by about mu times the 1,544 power rows: from 1e-3 the limit first rose to twice the
-#: start's, measured 2026-12-04). All share the compiled iterations.
+#: starts a cold start (mu = 0.1); warm from a nearby optimum (the coarse space's carried into the study's,
+#: the paper's limit's at 20 W, a gait at its own limit for the smallest limit) from mu = 1e-5. From 1e-3
+#: the barrier of the few thousand inequality rows first pushed the gait far inside (M1's J from 1.81 to
+#: 2.87 in 19 iterations) and the next barrier problems brought it back: measured on the six cases (2-core
+#: CPU, 2026-12-05), the study's space took 48 iterations from the coarse gaits and 52 for 20 W from 1e-3,
+#: 45 and 40 from 1e-4, 26 and 29 from 1e-5 (25 and 25 from 1e-6), every J equal to 7 digits (the six
+#: cases warm 44.8, 43.3, 35.3 s). In the smallest power limit's study space from 1e-3 the limit first rose
+#: to twice the start's (the barrier's centring moves t by about mu times the 1,544 power rows, measured
+#: 2026-12-04); its coarse stage starts from gaits carried into the coarse space, not from its optima,
+#: from 1e-3 (:data:`COARSE_POWER_OPTIONS`). A batch runs until its slowest problem stops, so the coarse
+#: starts' stage is capped at 80 iterations and the others at 150 per stage of a continuation. All share
+#: the compiled iterations.
 IP_OPTIONS = interior_point.InteriorPointOptions(max_iterations=80)
-IP_WARM_OPTIONS = interior_point.InteriorPointOptions(mu_initial=1e-3, max_iterations=150)
-IP_POWER_OPTIONS = interior_point.InteriorPointOptions(mu_initial=1e-5, max_iterations=150)
+IP_WARM_OPTIONS = interior_point.InteriorPointOptions(mu_initial=1e-5, max_iterations=150)
+COARSE_POWER_OPTIONS = dataclasses.replace(IP_WARM_OPTIONS, mu_initial=1e-3)
 #: The starts' stage in the coarse space: once 95 % of its starts have finished the batch stops, the rest
 #: ending "iteration limit" (a batched loop costs every start an iteration until the last one stops).
-#: Measured on the study's 36 starts (2-core CPU, warm cache, 2026-12-05): none finished before
-#: iteration 41, 35 by 60, the last ran to 80 and ended infeasible; with this quorum the six cases
-#: (M1-M4, M3 and M4 at 20 W) took 75.9 s instead of 91.1 s, every model's J and kept family unchanged
-#: (with 10 iterations of patience 84.7 s).
+#: Measured on the study's 36 starts on the coarse space's grid of 4 steps per span (2-core CPU, warm
+#: cache, 2026-12-05): none finished before iteration 41, 35 by 60, the last ran to 80 and ended
+#: infeasible; with this quorum the six cases (M1-M4, M3 and M4 at 20 W) took 75.9 s instead of 91.1 s,
+#: every model's J and kept family unchanged (with 10 iterations of patience 84.7 s). On the grid of 2
+#: steps per span (:func:`coarse_substeps`) all 36 converge by iteration 56.
 STARTS_OPTIONS = dataclasses.replace(IP_OPTIONS, quorum=0.95, patience=0)
 #: The continuation's last stages in the study's space (the coarse space runs all of
 #: :data:`~biped_jax.gait.solver.LIMIT_ENERGY_WEIGHTS`). Measured 2026-12-04 (2-core CPU, M1-M4 from
@@ -165,8 +169,8 @@ class StudySolvers:
       fine: in the study's space (every reported gait), warm-started.
       coarse: in the 4x coarser space on a grid of :func:`coarse_substeps`, choosing each model's start
         (no refinement check).
-      power, coarse_power: the smallest power limit's solvers in the study's space and the 4x coarser one
-        (on the study's steps per span).
+      power, coarse_power: the smallest power limit's solvers in the study's space (``fine`` itself) and
+        the 4x coarser one (on the study's steps per span, :data:`COARSE_POWER_OPTIONS`).
       families: the heuristic start families solved in the coarse space.
     """
 
@@ -198,8 +202,8 @@ def study_solvers(settings: gait_problem.GaitSettings = STUDY_SETTINGS) -> Study
     # the smallest power limit's first stages on the study's steps per span: on half of them the coarse
     # gaits used the power between the samples, and from them the study's space ended infeasible or at the
     # iteration limit for M3 and M4 (measured 2026-12-05)
-    coarse_power = GaitSolver(multistart.coarse_settings(settings), IP_WARM_OPTIONS, check_refinement=False)
-    return StudySolvers(fine, coarse, fine.using(IP_POWER_OPTIONS), coarse_power, STUDY_FAMILIES)
+    coarse_power = GaitSolver(multistart.coarse_settings(settings), COARSE_POWER_OPTIONS, check_refinement=False)
+    return StudySolvers(fine, coarse, fine, coarse_power, STUDY_FAMILIES)
 
 
 def run_study(out: Path, settings: gait_problem.GaitSettings = STUDY_SETTINGS,
