@@ -80,7 +80,7 @@ def main():
         f"{s.name} {s.status} L {s.step_length_m:.4f} J/L {s.energy_per_metre:.3f}" for s in free), flush=True)
 
     started = time.perf_counter()
-    fastest = solvers.power.fastest_gait(names, models, x0, bounds)
+    fastest = solvers.fine.fastest_gait(names, models, x0, bounds)
     times["fastest_s"] = time.perf_counter() - started
     print(f"fastest ({times['fastest_s']:.0f} s): " + ", ".join(
         f"{s.name} {s.status} v {s.speed_mps:.4f} L {s.step_length_m:.4f}" for s in fastest), flush=True)

@@ -120,19 +120,18 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
 
     curved = local.curved_segment_columns
     linear = np.asarray(local.linear_segment_columns, int)
+    in_place = np.argsort(np.concatenate([curved, linear]))  # the tangents back in the segment's column order
     unit = jnp.eye(width, dtype=x.dtype)
 
     def one_segment(columns, data, y_k, z_k):
+        """((rows, grad L_k), ((None, jac h_k (l, b), jac g_k (l, c)), the curved rows of L_k's Hessian (c, l)))."""
         point = padded[columns]
         function = lambda p, d: local.segment(p, d, params)  # noqa: E731
         (rows, grad), ((_, jh, jg), hess) = _second_order(lagrangian(function, y_k, z_k, data), point, unit[curved])
-        # hess (c, l): the curved columns' rows of the block (the linear columns' are zero)
-        hess = jnp.zeros((width, width), x.dtype).at[curved].set(hess)
-        if linear.size:
+        if linear.size:  # their Jacobian columns by a forward pass (their Hessian rows are zero)
             _, (_, jh_linear, jg_linear) = jax.vmap(lambda d: jax.jvp(lambda p: function(p, data), (point,), (d,)))(
                 unit[linear])
-            jh = jnp.zeros((width, jh.shape[1]), x.dtype).at[curved].set(jh).at[linear].set(jh_linear)
-            jg = jnp.zeros((width, jg.shape[1]), x.dtype).at[curved].set(jg).at[linear].set(jg_linear)
+            jh, jg = jnp.concatenate([jh, jh_linear])[in_place], jnp.concatenate([jg, jg_linear])[in_place]
         return (rows, grad), ((None, jh, jg), hess)
 
     (rows_k, grad_k), ((_, jh_k, jg_k), hess_k) = jax.vmap(one_segment)(
@@ -145,7 +144,7 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
 
     columns = jnp.asarray(local.segment_columns)
     grad = jnp.zeros(n + 1, x.dtype).at[columns].add(grad_k).at[boundary].add(grad_e)[:n]
-    hessian = (jnp.zeros((n + 1, n + 1), x.dtype).at[columns[:, :, None], columns[:, None, :]].add(hess_k)
+    hessian = (jnp.zeros((n + 1, n + 1), x.dtype).at[columns[:, curved, None], columns[:, None, :]].add(hess_k)
                .at[boundary[:, None], boundary[None, :]].add(hess_e))[:n, :n]
     hessian = 0.5 * (hessian + hessian.T)
 

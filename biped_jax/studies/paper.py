@@ -169,14 +169,13 @@ class StudySolvers:
       fine: in the study's space (every reported gait), warm-started.
       coarse: in the 4x coarser space on a grid of :func:`coarse_substeps`, choosing each model's start
         (no refinement check).
-      power, coarse_power: the smallest power limit's solvers in the study's space (``fine`` itself) and
-        the 4x coarser one (on the study's steps per span, :data:`COARSE_POWER_OPTIONS`).
+      coarse_power: the smallest power limit's first stages in the 4x coarser space (on the study's steps
+        per span, :data:`COARSE_POWER_OPTIONS`); its last stages run in ``fine``.
       families: the heuristic start families solved in the coarse space.
     """
 
     fine: GaitSolver
     coarse: GaitSolver
-    power: GaitSolver
     coarse_power: GaitSolver
     families: tuple
 
@@ -203,7 +202,7 @@ def study_solvers(settings: gait_problem.GaitSettings = STUDY_SETTINGS) -> Study
     # gaits used the power between the samples, and from them the study's space ended infeasible or at the
     # iteration limit for M3 and M4 (measured 2026-12-05)
     coarse_power = GaitSolver(multistart.coarse_settings(settings), COARSE_POWER_OPTIONS, check_refinement=False)
-    return StudySolvers(fine, coarse, fine, coarse_power, STUDY_FAMILIES)
+    return StudySolvers(fine, coarse, coarse_power, STUDY_FAMILIES)
 
 
 def run_study(out: Path, settings: gait_problem.GaitSettings = STUDY_SETTINGS,
@@ -254,7 +253,7 @@ def run_study(out: Path, settings: gait_problem.GaitSettings = STUDY_SETTINGS,
     say("smallest feasible power limit per model")
     minimal = outputs.stage(out, "minimal_power_limits", key, lambda: done(
         "smallest power limit (study space)", minimal_power_limits(
-            solvers.power, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
+            solvers.fine, solutions, paper_gait_models(PAPER_MODELS), coarse=solvers.coarse_power,
             progress=power_report(say)),
         lambda records: sum(r["min_power_gait"] is not None for r in records)), resume, say)
 

@@ -119,7 +119,7 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
         drawn.append(free)
     if smallest_power_limit:
         say("the smallest power limit at which it walks")
-        minimum, = paper.minimal_power_limits(solvers.power, [solution], [model], coarse=solvers.coarse_power,
+        minimum, = paper.minimal_power_limits(solvers.fine, [solution], [model], coarse=solvers.coarse_power,
                                               progress=paper.power_report(say))
         gait_at_minimum = minimum.pop("min_power_gait")
         results["smallest_power_limit"] = {**minimum, "gait": None if gait_at_minimum is None
@@ -130,7 +130,7 @@ def run_solve(out: Path, problem: Problem, settings: gait_problem.GaitSettings =
     if fastest:
         bounds = tuple(free_step_length) if free_step_length is not None else FASTEST_STEP_BOUNDS
         say(f"the fastest gait (step length in [{bounds[0]:g}, {bounds[1]:g}] m)")
-        quickest, = solvers.power.fastest_gait(["fastest"], [model], solution.x[None], bounds,
+        quickest, = solvers.fine.fastest_gait(["fastest"], [model], solution.x[None], bounds,
                                                progress=paper.power_report(say))
         results["fastest"] = {"bounds_m": list(bounds), "speed_mps": quickest.speed_mps,
                               "step_length_m": quickest.step_length_m, "status": quickest.status,
