@@ -52,7 +52,7 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
     the gait (:meth:`GaitSolver.minimise_power_limit`, the interior point's continuation),
     started from each model's converged gait at its own limit (``solutions[b]`` solved for
     ``models[b]``); with ``coarse``, first in its space (the gaits carried there by least squares, the
-    whole continuation of :data:`~biped_jax.gait.solver.LIMIT_ENERGY_WEIGHTS`), then from there in
+    continuation of :data:`COARSE_LIMIT_WEIGHTS`), then from there in
     ``solver``'s (its last stages, :data:`STUDY_LIMIT_WEIGHTS`: an iteration in the 4x coarser space
     costs a tenth).
 
@@ -78,7 +78,8 @@ def minimal_power_limits(solver: GaitSolver, solutions: list[GaitSolution], mode
         if coarse is not None:
             carried = np.stack([gait_problem.project(s.x, solver.settings, coarse.settings,
                                                      s.trajectory) for s in rows])
-            first = coarse.minimise_power_limit(names, models, carried, progress=tagged("coarse space"))
+            first = coarse.minimise_power_limit(names, models, carried, progress=tagged("coarse space"),
+                                                energy_weights=COARSE_LIMIT_WEIGHTS)
             # from the coarse space's gait and limit (2 % above it: the carried gait is close, not equal)
             carried_on = [c.max_violation <= verdict.VIOLATION_TOLERANCE for c in first]
             x0 = np.stack([gait_problem.project(c.x, coarse.settings, solver.settings, c.trajectory) if ok else s.x
@@ -153,12 +154,22 @@ COARSE_POWER_OPTIONS = dataclasses.replace(IP_WARM_OPTIONS, mu_initial=1e-3)
 #: every model's J and kept family unchanged (with 10 iterations of patience 84.7 s). On the grid of 2
 #: steps per span (:func:`coarse_substeps`) all 36 converge by iteration 56.
 STARTS_OPTIONS = dataclasses.replace(IP_OPTIONS, quorum=0.95, patience=0)
-#: The continuation's last stages in the study's space (the coarse space runs all of
-#: :data:`~biped_jax.gait.solver.LIMIT_ENERGY_WEIGHTS`). Measured 2026-12-04 (2-core CPU, M1-M4 from
-#: the study's optima): every model converged in both spaces, 227-286 iterations in all; the plain
-#: epigraph form alone (w = 0) from the coarse gait stopped infeasible or at the iteration limit, and
-#: (0.001, 0) had not converged after 70 iterations of its first stage.
-STUDY_LIMIT_WEIGHTS = (0.01, 0.001, 0.0)
+#: The smallest limit's continuation in the 4x coarser space: the weights of
+#: :data:`~biped_jax.gait.solver.LIMIT_ENERGY_WEIGHTS` less 0.001, after whose stage the stage at 0 reached
+#: the same gaits (the study space's start equal to 8 digits; 2-core CPU, 2026-12-05); from (0.1, 0.01)
+#: alone the study's space stopped at its iteration limit for M1.
+COARSE_LIMIT_WEIGHTS = (0.1, 0.01, 0.0)
+#: The continuation's last stages in the study's space (the coarse space runs
+#: :data:`COARSE_LIMIT_WEIGHTS`). Measured on M1-M4 from the coarse space's gaits (2-core CPU, 2026-12-05):
+#: (0.01, 0) reaches the same four limits as (0.01, 0.001, 0) to 5 digits (1.48284 / 2.28427 / 2.23274 /
+#: 3.42658 W) in 226 iterations of the batch instead of 325 (89 s against 126 s); (0.001, 0) the same but
+#: M4 3.42998 W in 246; the plain epigraph form alone (w = 0) converges in 122 but to worse local minima
+#: (M1 and M3 +0.8 %). The first stage starts from :data:`IP_WARM_OPTIONS`' mu = 1e-5 (from 1e-4 or 1e-6
+#: M3 or all four stopped at the iteration limit), every later one from
+#: :data:`~biped_jax.gait.solver.LIMIT_WARM_MU` = 1e-4, whose barrier pushes the gait inside before the
+#: limit falls again: from 1e-6 the limits were 1-6 % worse, and an adaptive barrier (Mehrotra's probing)
+#: found M1 and M3 0.8 and 3.7 % worse or stopped at the iteration limit (benchmarks/RESULTS.md).
+STUDY_LIMIT_WEIGHTS = (0.01, 0.0)
 
 
 @dataclasses.dataclass(frozen=True)
