@@ -3,6 +3,8 @@ segment-local exact derivatives (biped_jax.optim.local_derivatives) equal centra
 problem. ``benchmarks/local_derivatives.py`` checks them against the dense autodiff derivatives to
 rounding (the energy and the power-limit problem, several segmentations) and times them."""
 
+import dataclasses
+
 import jax
 import numpy as np
 import pytest
@@ -72,3 +74,13 @@ def test_the_splits_derivatives_equal_central_differences_of_the_problem():
         plus = split(local, point + offsets[i], model, 0.7, y, z, True)[3]
         minus = split(local, point - offsets[i], model, 0.7, y, z, True)[3]
         np.testing.assert_allclose(hessian[:, i], (plus - minus) / (2 * step), atol=1e-6 * np.max(np.abs(hessian)))
+
+
+def test_linear_columns_come_with_their_constant_jacobian_rows():
+    """A segment's linear columns take no derivative pass: their d h / d column must be given, one row per
+    column (central differences above check the values)."""
+    solver, _, _ = _space(SPACES["4 segments"])
+    local = segmented.local_problem(solver.biped, solver.settings)
+    assert np.shape(local.linear_segment_h) == (len(local.linear_segment_columns), 2)
+    with pytest.raises(ValueError, match="linear_segment_h"):
+        dataclasses.replace(local, linear_segment_h=((-1.0, 0.0),))

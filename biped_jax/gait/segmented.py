@@ -232,6 +232,8 @@ def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: st
                         boundary_columns=split.boundary_columns, segment_data=split.data,
                         order_r=order_r, order_h=order_h, order_g=order_g,
                         linear_objective=split.n - 1 if split.spec.linear else None,
-                        # the next node enters only the defect, end - node
+                        # the next node enters only the defect, end - node, scaled as h's two rows
                         linear_segment_columns=(2 + 4 * split.window, 3 + 4 * split.window),
+                        linear_segment_h=((-1 / constraints.group_scale("continuity_angle"), 0.0),
+                                          (0.0, -1 / constraints.group_scale("continuity_rate"))),
                         energy_weight=(lambda params: params.energy_weight) if split.spec.linear else None)

@@ -44,9 +44,11 @@ class LocalProblem:
       linear_objective: None: f = r . r; a column index i: f = x[i] + energy_weight(params) r . r.
       energy_weight: ``params -> weight`` of r . r beside a linear objective (None: 0, the rows r unused).
       linear_segment_columns: positions in a segment's columns (of ``segment_columns``' second axis) that
-        its rows depend on linearly and that meet no other column in their second derivatives (the next
-        shooting node, which enters only the defect end - node): their Hessian rows are zero, so they
-        take no direction of the second-order pass, only a forward one for their Jacobian columns.
+        enter only its equality rows h, each with a constant coefficient (the next shooting node, which
+        enters only the defect end - node): their Hessian rows are zero and their Jacobian columns are
+        ``linear_segment_h``, so they take no direction of the derivative passes.
+      linear_segment_h: per linear column its d h_k / d column, (len(linear_segment_columns), b) as
+        nested tuples (the same for every segment; r_k and g_k do not depend on it).
     """
 
     segment: Callable[[jax.Array, Any, Any], tuple]
@@ -60,6 +62,12 @@ class LocalProblem:
     linear_objective: int | None = None
     energy_weight: Callable[[Any], Any] | None = None
     linear_segment_columns: tuple = ()
+    linear_segment_h: tuple = ()
+
+    def __post_init__(self):
+        if np.shape(self.linear_segment_h)[:1] != (len(self.linear_segment_columns),):
+            raise ValueError(f"linear_segment_h needs a row of d h / d column per linear column "
+                             f"({len(self.linear_segment_columns)}), got shape {np.shape(self.linear_segment_h)}")
 
     @property
     def curved_segment_columns(self) -> np.ndarray:
@@ -128,10 +136,10 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
         point = padded[columns]
         function = lambda p, d: local.segment(p, d, params)  # noqa: E731
         (rows, grad), ((_, jh, jg), hess) = _second_order(lagrangian(function, y_k, z_k, data), point, unit[curved])
-        if linear.size:  # their Jacobian columns by a forward pass (their Hessian rows are zero)
-            _, (_, jh_linear, jg_linear) = jax.vmap(lambda d: jax.jvp(lambda p: function(p, data), (point,), (d,)))(
-                unit[linear])
-            jh, jg = jnp.concatenate([jh, jh_linear])[in_place], jnp.concatenate([jg, jg_linear])[in_place]
+        if linear.size:  # their Jacobian columns are constants (their Hessian rows are zero)
+            jh_linear = jnp.asarray(local.linear_segment_h, x.dtype)
+            jh = jnp.concatenate([jh, jh_linear])[in_place]
+            jg = jnp.concatenate([jg, jnp.zeros((linear.size, jg.shape[1]), x.dtype)])[in_place]
         return (rows, grad), ((None, jh, jg), hess)
 
     (rows_k, grad_k), ((_, jh_k, jg_k), hess_k) = jax.vmap(one_segment)(
