@@ -172,9 +172,7 @@ class _Split:
         groups = constraints.sample_groups(q, u, force, positions[:, 0], positions[:, 1:, 1], speed, model,
                                            self.settings)
         following = local[2 + 4 * self.window:4 + 4 * self.window]
-        defect = end - following
-        h = jnp.stack([defect[0] / constraints.group_scale("continuity_angle"),
-                       defect[1] / constraints.group_scale("continuity_rate")])
+        h = (end - following) / jnp.asarray(_DEFECT_SCALES, end.dtype)
         g = jnp.concatenate([(groups[name] / constraints.group_scale(name)).ravel()
                              for name in constraints.SAMPLE_GROUPS])
         return r, h, g
@@ -205,6 +203,9 @@ class _Split:
         return jnp.zeros(0, columns.dtype), h, g
 
 
+#: A segment's defect rows, end - next node, are scaled by these (angle, rate): the rows' only
+#: dependence on the next node, so its Jacobian columns are -1 / these (``linear_segment_h``).
+_DEFECT_SCALES = (constraints.group_scale("continuity_angle"), constraints.group_scale("continuity_rate"))
 _BOUNDARY_EQUALITIES = ("touchdown_position", "periodicity_angle", "periodicity_rate")
 _BOUNDARY_INEQUALITIES = ("touchdown_descending", "impact_impulse", "liftoff")
 
@@ -234,6 +235,5 @@ def local_problem(biped: mjx_biped.PlanarBiped, settings: GaitSettings, kind: st
                         linear_objective=split.n - 1 if split.spec.linear else None,
                         # the next node enters only the defect, end - node, scaled as h's two rows
                         linear_segment_columns=(2 + 4 * split.window, 3 + 4 * split.window),
-                        linear_segment_h=((-1 / constraints.group_scale("continuity_angle"), 0.0),
-                                          (0.0, -1 / constraints.group_scale("continuity_rate"))),
+                        linear_segment_h=tuple(map(tuple, np.diag(-1 / np.asarray(_DEFECT_SCALES)))),
                         energy_weight=(lambda params: params.energy_weight) if split.spec.linear else None)
