@@ -301,7 +301,7 @@ def test_gaits_converge_to_kkt_points_checked_with_central_differences(interior_
         assert np.max(np.abs(lam_in * g)) < 1e-6  # complementarity
 
 
-def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
+def test_a_batch_larger_than_memory_is_solved_in_lanes_that_fit():
     problem = nlp.ConstrainedProblem(hs071)
     compiled = interior_point.compile_problem(problem)
     starts, targets = np.tile([1.0, 5.0, 5.0, 1.0], (5, 1)), jnp.asarray([40.0, 38.0, 42.0, 41.0, 39.0])
@@ -311,14 +311,42 @@ def test_a_batch_larger_than_memory_is_solved_in_chunks_that_fit():
     assert needed > 0
     assert list(compiled.memory.values()) == [needed]  # asked once per batch shape, not once per solve
     said = []
-    chunked = interior_point.solve(problem, starts, targets, compiled=compiled, memory_budget=0.5 * needed,
-                                   say=said.append)
-    assert len(said) == 1 and "solving it in chunks of" in said[0], said
-    assert chunked.status == whole.status and chunked.x.shape == (5, 4)
-    np.testing.assert_allclose(chunked.x, whole.x, atol=1e-10)
-    np.testing.assert_allclose(chunked.multipliers_in, whole.multipliers_in, atol=1e-9)
+    pooled = interior_point.solve(problem, starts, targets, compiled=compiled, memory_budget=0.5 * needed,
+                                  say=said.append)
+    assert len(said) == 1 and "at a time, each lane taking the next problem" in said[0], said
+    assert pooled.status == whole.status and pooled.x.shape == (5, 4)
+    np.testing.assert_allclose(pooled.x, whole.x, atol=1e-10)
+    np.testing.assert_allclose(pooled.multipliers_in, whole.multipliers_in, atol=1e-9)
     with pytest.raises(MemoryError, match="one problem's program needs about"):
         interior_point.solve(problem, starts, targets, compiled=compiled, memory_budget=1.0)
+
+
+def test_a_lane_whose_problem_finishes_takes_the_next_one():
+    """Four HS071 problems, one far start (14 iterations) and three at the optimum (5 each), in two
+    lanes: the far one keeps its lane while the other lane solves the three in turn, so the batch takes
+    max(14, 5 + 5 + 5) iterations of its program instead of 14 + 5 (two batches of two one after
+    another, or a batch of four waiting for its slowest); every problem's result is the one it has when
+    the four run at once, and the lanes share one program."""
+    optimum = [1.0, 4.74299964, 3.82114998, 1.37940829]
+    starts = jnp.array([[3.0, 0.5, 4.8, 4.5], optimum, optimum, optimum])
+    compiled = interior_point.compile_problem(nlp.ConstrainedProblem(hs071))
+    options = interior_point.InteriorPointOptions(block=1, mu_initial=1e-6)
+    together = interior_point.solve(compiled.problem, starts, jnp.full(4, 40.0), options, compiled=compiled)
+    steps = []
+    pooled = interior_point.solve(compiled.problem, starts, jnp.full(4, 40.0),
+                                  dataclasses.replace(options, lanes=2), compiled=compiled,
+                                  progress=lambda step, row: steps.append((step, int(row["done"].sum()))))
+    its = together.outer_iterations
+    assert its[0] > its[1] + 5 and pooled.status == together.status == ["converged"] * 4
+    np.testing.assert_array_equal(pooled.outer_iterations, its)
+    np.testing.assert_allclose(pooled.x, together.x, atol=1e-12)
+    np.testing.assert_allclose(pooled.multipliers_eq, together.multipliers_eq, atol=1e-10)
+    assert steps[-1] == (max(its[0], its[1] + its[2] + its[3]), 4)
+    assert len(pooled.history) == max(its)  # one row per block of each problem's own iterations
+    np.testing.assert_allclose(pooled.history[-1]["cost"], together.cost, rtol=1e-12)
+    assert compiled.block._cache_size() == 2 and compiled.initial._cache_size() == 2  # four lanes, two
+    with pytest.raises(ValueError, match="lanes must be a positive integer or None, got 0"):
+        interior_point.InteriorPointOptions(lanes=0)
 
 
 def test_the_smallest_power_limit_is_a_kkt_point_of_the_epigraph_form(interior_gaits):

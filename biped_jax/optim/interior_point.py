@@ -88,6 +88,10 @@ class InteriorPointOptions:
         batched loop costs every lane an iteration until its last problem finishes, so a few slow
         problems (a co-design start far from any gait) otherwise set the time of the whole batch. The
         default (quorum 1) waits for every problem.
+      lanes: problems iterated at once (None: the whole batch, as far as memory allows). A larger batch
+        runs in that many lanes of one program, each lane taking the next waiting problem as soon as its
+        own finishes: where the lanes' work is the device's limit (a CPU, a busy GPU), a batch then costs
+        about the sum of its problems' iterations instead of its slowest problem's times the batch.
     """
 
     tolerance: float = 1e-8
@@ -107,6 +111,7 @@ class InteriorPointOptions:
     mu_based_multipliers: bool = False
     quorum: float = 1.0
     patience: int = 0
+    lanes: int | None = None
 
     def __post_init__(self):
         for name in ("tolerance", "feasibility", "acceptable_tolerance", "mu_initial", "slack_push",
@@ -122,6 +127,9 @@ class InteriorPointOptions:
             raise ValueError(f"InteriorPointOptions.quorum must be a fraction in (0, 1], got {self.quorum!r}")
         if isinstance(self.patience, bool) or not isinstance(self.patience, int) or self.patience < 0:
             raise ValueError(f"InteriorPointOptions.patience must be a non-negative integer, got {self.patience!r}")
+        if self.lanes is not None and (isinstance(self.lanes, bool) or not isinstance(self.lanes, int)
+                                       or self.lanes < 1):
+            raise ValueError(f"InteriorPointOptions.lanes must be a positive integer or None, got {self.lanes!r}")
 
 
 # IPOPT's constants (Waechter and Biegler 2006, Sec. 2-3), not options there either.
@@ -475,7 +483,8 @@ def _iterate(problem, options, structure, params, st: State) -> State:
 
 
 def _block(problem, options, structure, params, state: State, until) -> State:
-    """Iterations of one problem until it finishes or reaches iteration ``until``."""
+    """Iterations of one problem until it finishes or reaches iteration ``until`` (its own: the lanes
+    of a batch may hold problems that started at different times)."""
     return jax.lax.while_loop(lambda st: (st.code == _RUNNING) & (st.iteration < until),
                               functools.partial(_iterate, problem, options, structure, params), state)
 
@@ -496,9 +505,10 @@ class CompiledInteriorPoint:
 
 def loop_options(options: InteriorPointOptions) -> InteriorPointOptions:
     """``options`` less the settings the compiled iterations do not depend on (the first barrier
-    parameter, the iteration budget, its blocks, the batch's quorum and patience): solves that differ
+    parameter, the iteration budget, its blocks, the batch's quorum, patience and lanes): solves that differ
     only in those share programs."""
-    return dataclasses.replace(options, mu_initial=0.1, max_iterations=1, block=1, quorum=1.0, patience=0)
+    return dataclasses.replace(options, mu_initial=0.1, max_iterations=1, block=1, quorum=1.0, patience=0,
+                               lanes=None)
 
 
 def compile_problem(problem: nlp.ConstrainedProblem, options: InteriorPointOptions = InteriorPointOptions()
@@ -507,7 +517,7 @@ def compile_problem(problem: nlp.ConstrainedProblem, options: InteriorPointOptio
     share :func:`loop_options` with ``options``."""
     options = loop_options(options)
     initial = jax.jit(jax.vmap(functools.partial(initial_state, problem), in_axes=(0, 0, 0, 0, None)))
-    block = jax.jit(jax.vmap(functools.partial(_block, problem, options), in_axes=(None, 0, 0, None)))
+    block = jax.jit(jax.vmap(functools.partial(_block, problem, options), in_axes=(None, 0, 0, 0)))
     return CompiledInteriorPoint(problem, options, initial, block)
 
 
@@ -568,15 +578,18 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
       progress: called after every block with (iteration, {"cost", "violation", "error", "mu": (B,),
         "done": (B,) bool}).
 
-    The batch is padded to :func:`padded_batch` problems (copies of the first that never iterate), so
-    that batches of nearby sizes share a program. A batch whose program needs more memory than
-    ``memory_budget`` bytes (default: :data:`MEMORY_FRACTION` of what the device has free, XLA's own
-    estimate of the compiled program) is solved in chunks that fit, one after another (``say``, default
-    a logged warning, tells how); a single problem that does not fit raises MemoryError before running.
+    The problems run in lanes of one program (``options.lanes``, default the whole batch), padded to
+    :func:`padded_batch` lanes (copies of the first problem that never iterate) so that batches of nearby
+    sizes share a program; a lane whose problem finishes takes the next waiting one. Where the lanes'
+    program needs more memory than ``memory_budget`` bytes (default: :data:`MEMORY_FRACTION` of what the
+    device has free, XLA's own estimate of the compiled program), fewer lanes are used (``say``, default
+    a logged warning, tells how many); a single problem that does not fit raises MemoryError before
+    running.
 
     Returns an :class:`~biped_jax.optim.nlp.SolveResult`: ``outer_iterations`` counts interior-point
     iterations, ``gradients`` the problem evaluations (each derivative pass counted as its colours),
-    ``history`` one row per block; the multipliers are the unscaled problem's (f + lam_eq.h + lam_in.g).
+    ``history`` one row per block of each problem's own iterations (a problem that finished early
+    repeats its last); the multipliers are the unscaled problem's (f + lam_eq.h + lam_in.g).
     """
     started = time.perf_counter()
     if compiled is None or compiled.options != loop_options(options):
@@ -592,13 +605,10 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
         multipliers = (jnp.zeros((batch,) + h0.shape, x0.dtype), jnp.zeros((batch,) + g0.shape, x0.dtype))
     multipliers = tuple(jnp.asarray(m, x0.dtype) for m in multipliers)
     budget = available_memory() * MEMORY_FRACTION if memory_budget is None else memory_budget
-    chunk = _chunk_that_fits(compiled, structure, x0, params, multipliers, budget, say)
-    parts = []
-    for first in range(0, batch, chunk):
-        part = slice(first, min(first + chunk, batch))
-        parts.append(_solve_batch(compiled, options, structure, x0[part], jax.tree.map(lambda a: a[part], params),
-                                  tuple(m[part] for m in multipliers), progress, started))
-    return parts[0] if len(parts) == 1 else _joined(parts, time.perf_counter() - started)
+    lanes = min(batch, options.lanes or batch)
+    lanes = _lanes_that_fit(compiled, structure, x0[:lanes], jax.tree.map(lambda a: a[:lanes], params),
+                            tuple(m[:lanes] for m in multipliers), budget, say)
+    return _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, progress, started)
 
 
 #: The share of the free device memory one batch's program may take (the rest: the arrays around it).
@@ -638,7 +648,7 @@ def program_memory(compiled: CompiledInteriorPoint, structure, x0, params, multi
         return compiled.memory[key]
     state = jax.tree.map(shaped, jax.eval_shape(compiled.initial, shapes[0], shapes[1], shapes[2][0],
                                                 shapes[2][1], 0.1))
-    executable = compiled.block.lower(structure, shapes[1], state, jnp.asarray(1, jnp.int32)).compile()
+    executable = compiled.block.lower(structure, shapes[1], state, np.ones(padded, np.int32)).compile()
     stats = executable.memory_analysis()
     needed = 0.0 if stats is None else float(  # a backend without the analysis: assume it fits
         stats.argument_size_in_bytes + stats.output_size_in_bytes + stats.temp_size_in_bytes
@@ -647,9 +657,9 @@ def program_memory(compiled: CompiledInteriorPoint, structure, x0, params, multi
     return needed
 
 
-def _chunk_that_fits(compiled, structure, x0, params, multipliers, budget: float, say) -> int:
-    """The largest number of problems per program (the whole batch, or a :func:`padded_batch` size)
-    whose program fits in ``budget`` bytes, by XLA's memory analysis scaled with the batch."""
+def _lanes_that_fit(compiled, structure, x0, params, multipliers, budget: float, say) -> int:
+    """The largest number of lanes (problems iterated at once: all of x0's, or a :func:`padded_batch`
+    size) whose program fits in ``budget`` bytes, by XLA's memory analysis scaled with the lanes."""
     batch = x0.shape[0]
     needed = program_memory(compiled, structure, x0, params, multipliers)
     if needed <= budget:
@@ -659,67 +669,102 @@ def _chunk_that_fits(compiled, structure, x0, params, multipliers, budget: float
     if chunk == 0:
         raise MemoryError(f"one problem's program needs about {per_problem / 2**30:.2f} GiB, more than the "
                           f"{budget / 2**30:.2f} GiB this device has free for it")
-    message = (f"a batch of {batch} problems needs about {needed / 2**30:.1f} GiB, more than the "
-               f"{budget / 2**30:.1f} GiB free for it: solving it in chunks of {chunk}, one after another")
+    message = (f"{batch} problems at once need about {needed / 2**30:.1f} GiB, more than the "
+               f"{budget / 2**30:.1f} GiB free for them: solving {chunk} at a time, each lane taking the next "
+               f"problem as its own finishes")
     (say or logging.getLogger(__name__).warning)(message)
     return chunk
 
 
-def _joined(parts: list[nlp.SolveResult], wall_time_s: float) -> nlp.SolveResult:
-    """The results of consecutive chunks as one batch's (histories joined row by row, the last row of a
-    chunk that finished early repeated)."""
-    rows = max(len(p.history) for p in parts)
-    history = []
-    for r in range(rows):
-        chunk_rows = [p.history[min(r, len(p.history) - 1)] for p in parts]
-        history.append({k: np.concatenate([row[k] for row in chunk_rows]) for k in chunk_rows[0] if k != "x"})
-    history[-1]["x"] = np.concatenate([p.x for p in parts])
-    stacked = {field: np.concatenate([getattr(p, field) for p in parts])
-               for field in ("x", "cost", "equalities", "inequalities", "violation", "stationarity",
-                             "outer_iterations", "gradients", "multipliers_eq", "multipliers_in")}
-    return nlp.SolveResult(status=[s for p in parts for s in p.status], wall_time_s=wall_time_s,
-                           history=history, **stacked)
+@jax.jit
+def _refilled(mask, fresh, old):
+    """``old`` (a pytree of (L, ...) lane arrays) with the lanes where ``mask`` (L,) holds taken from
+    ``fresh``."""
+    return jax.tree.map(lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b), fresh, old)
 
 
-def _solve_batch(compiled, options, structure, x0, params, multipliers, progress, started) -> nlp.SolveResult:
-    """One program's run over a batch that fits (see :func:`solve`)."""
+#: What :func:`_solve_pooled` reads of every lane after every block (the history and the progress).
+_ROW_KEYS = ("cost", "violation", "error", "mu", "gradients", "stationarity")
+
+
+def _lane_rows(state: State) -> dict:
+    return {"cost": state.f, "violation": jax.vmap(violation)(state.h, state.g), "error": state.error,
+            "mu": state.mu, "gradients": state.evaluations, "stationarity": state.stationarity,
+            "code": state.code, "iteration": state.iteration}
+
+
+def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, progress, started) -> nlp.SolveResult:
+    """A batch of B problems solved in ``lanes`` lanes of one program (the whole batch where it fits):
+    each lane iterates one problem and, as soon as it finishes, takes the next waiting one, so that a
+    batch larger than its program costs the sum of its problems' iterations, not its slowest problem's
+    iterations times its chunks (see :func:`solve`)."""
     batch = x0.shape[0]
     y0, z0 = multipliers
-    padded = padded_batch(batch)
-    x0, y0, z0, params = jax.tree.map(lambda a: pad_rows(jnp.asarray(a), padded), (x0, y0, z0, params))
-    sharding = batch_sharding(padded)
-    if sharding is not None:
-        x0, y0, z0, params = jax.device_put((x0, y0, z0, params), sharding)
-    state = compiled.initial(x0, params, y0, z0, options.mu_initial)
-    state = state._replace(code=jnp.where(jnp.arange(padded) < batch, state.code, _PADDING))
-    history = []
-    until, quorum_at = 0, None
-    while until < options.max_iterations:
-        until = min(until + options.block, options.max_iterations)
-        state = compiled.block(structure, params, state, jnp.asarray(until, jnp.int32))
-        row = {"cost": np.asarray(state.f), "violation": np.asarray(jax.vmap(violation)(state.h, state.g)),
-               "error": np.asarray(state.error), "mu": np.asarray(state.mu),
-               "gradients": np.asarray(state.evaluations),
-               "stationarity": np.asarray(state.stationarity), "done": np.asarray(state.code) != _RUNNING}
-        row = {k: v[:batch] for k, v in row.items()}
-        history.append(row)
+    size = padded_batch(min(lanes, batch))
+    sharding = batch_sharding(size)
+
+    def rows_of(problems):
+        """x0, params, y0, z0 of ``problems`` (size,) (lanes without one: copies of the first problem)."""
+        rows = jnp.asarray(np.maximum(problems, 0))
+        taken = jax.tree.map(lambda a: jnp.asarray(a)[rows], (x0, params, y0, z0))
+        return taken if sharding is None else jax.device_put(taken, sharding)
+
+    lane = np.where(np.arange(size) < batch, np.arange(size), -1)   # the problem in each lane, -1: none
+    waiting = int(np.sum(lane >= 0))                                  # the next problem to start
+    x, lane_params, y, z = rows_of(lane)
+    state = compiled.initial(x, lane_params, y, z, options.mu_initial)
+    state = state._replace(code=jnp.where(jnp.asarray(lane >= 0), state.code, _PADDING))
+    iterations = np.zeros(size, np.int32)
+    results = [None] * batch     # per problem: its lane's final state, on the host
+    rows = [[] for _ in range(batch)]
+    latest = {key: np.full(batch, np.inf) for key in _ROW_KEYS} | {"done": np.zeros(batch, bool)}
+    steps, quorum_at = 0, None
+    while np.any(lane >= 0):
+        until = np.minimum(iterations + options.block, options.max_iterations).astype(np.int32)
+        state = compiled.block(structure, lane_params, state, until)
+        steps += options.block
+        host = jax.tree.map(np.asarray, _lane_rows(state))
+        iterations = host["iteration"]
+        active = np.flatnonzero(lane >= 0)
+        finished = (host["code"][active] != _RUNNING) | (iterations[active] >= options.max_iterations)
+        for l, done in zip(active, finished):
+            row = {key: host[key][l] for key in _ROW_KEYS} | {"done": host["code"][l] != _RUNNING}
+            rows[lane[l]].append(row)
+            for key, value in row.items():
+                latest[key][lane[l]] = value
+        if quorum_at is None and waiting == batch and latest["done"].mean() >= options.quorum:
+            quorum_at = steps
+        if quorum_at is not None and steps - quorum_at >= options.patience:
+            finished[:] = True                  # the quorum's patience is over: the rest stop here
+        ended = active[finished]
+        if len(ended):
+            kept = jax.tree.map(lambda a: np.asarray(a[jnp.asarray(ended)]), state)
+            for k, l in enumerate(ended):
+                results[lane[l]] = jax.tree.map(lambda a: a[k], kept)
+            starting = np.zeros(size, bool)
+            for l in ended:
+                lane[l], waiting = (waiting, waiting + 1) if waiting < batch else (-1, waiting)
+                starting[l] = lane[l] >= 0
+            if starting.any():
+                x, new_params, y, z = rows_of(lane)
+                fresh = compiled.initial(x, new_params, y, z, options.mu_initial)
+                state, lane_params = _refilled(jnp.asarray(starting), (fresh, new_params), (state, lane_params))
+                iterations = np.where(starting, 0, iterations)
+            state = state._replace(code=jnp.where(jnp.asarray(lane >= 0), state.code, _PADDING))
         if progress:
-            progress(int(np.max(np.asarray(state.iteration))), row)
-        if row["done"].all():
-            break
-        if quorum_at is None and row["done"].mean() >= options.quorum:
-            quorum_at = until
-        if quorum_at is not None and until - quorum_at >= options.patience:
-            break
-    state = jax.tree.map(lambda a: a[:batch], state)
-    viol = history[-1]["violation"]
-    codes = np.asarray(state.code)
-    history[-1]["x"] = np.asarray(state.x)
+            progress(steps, dict(latest))
+    final = jax.tree.map(lambda *leaves: np.stack(leaves), *results)
+    # every problem's rows, those that finished early repeating their last
+    count = max(len(r) for r in rows)
+    history = [{key: np.asarray([r[min(k, len(r) - 1)][key] for r in rows]) for key in rows[0][0]}
+               for k in range(count)]
+    history[-1]["x"] = final.x
+    viol = np.asarray([r[-1]["violation"] for r in rows])
     return nlp.SolveResult(
-        x=np.asarray(state.x), cost=np.asarray(state.f), equalities=np.asarray(state.h),
-        inequalities=np.asarray(state.g), violation=viol, stationarity=np.asarray(state.stationarity),
-        status=[_status(int(c), float(v), options) for c, v in zip(codes, viol)],
-        outer_iterations=np.asarray(state.iteration), gradients=np.asarray(state.evaluations),
+        x=final.x, cost=final.f, equalities=final.h, inequalities=final.g, violation=viol,
+        stationarity=final.stationarity,
+        status=[_status(int(c), float(v), options) for c, v in zip(final.code, viol)],
+        outer_iterations=final.iteration, gradients=final.evaluations,
         wall_time_s=time.perf_counter() - started, history=history,
-        multipliers_eq=np.asarray(state.y * state.scale_h / state.scale_f[:, None]),
-        multipliers_in=np.asarray(state.z * state.scale_g / state.scale_f[:, None]))
+        multipliers_eq=final.y * final.scale_h / final.scale_f[:, None],
+        multipliers_in=final.z * final.scale_g / final.scale_f[:, None])
