@@ -727,11 +727,11 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
         iterations = host["iteration"]
         active = np.flatnonzero(lane >= 0)
         finished = (host["code"][active] != _RUNNING) | (iterations[active] >= options.max_iterations)
-        for l, done in zip(active, finished):
-            row = {key: host[key][l] for key in _ROW_KEYS} | {"done": host["code"][l] != _RUNNING}
-            rows[lane[l]].append(row)
+        for at in active:
+            row = {key: host[key][at] for key in _ROW_KEYS} | {"done": host["code"][at] != _RUNNING}
+            rows[lane[at]].append(row)
             for key, value in row.items():
-                latest[key][lane[l]] = value
+                latest[key][lane[at]] = value
         if quorum_at is None and waiting == batch and latest["done"].mean() >= options.quorum:
             quorum_at = steps
         if quorum_at is not None and steps - quorum_at >= options.patience:
@@ -739,12 +739,12 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
         ended = active[finished]
         if len(ended):
             kept = jax.tree.map(lambda a: np.asarray(a[jnp.asarray(ended)]), state)
-            for k, l in enumerate(ended):
-                results[lane[l]] = jax.tree.map(lambda a: a[k], kept)
+            for k, at in enumerate(ended):
+                results[lane[at]] = jax.tree.map(lambda a: a[k], kept)
             starting = np.zeros(size, bool)
-            for l in ended:
-                lane[l], waiting = (waiting, waiting + 1) if waiting < batch else (-1, waiting)
-                starting[l] = lane[l] >= 0
+            for at in ended:
+                lane[at], waiting = (waiting, waiting + 1) if waiting < batch else (-1, waiting)
+                starting[at] = lane[at] >= 0
             if starting.any():
                 x, new_params, y, z = rows_of(lane)
                 fresh = compiled.initial(x, new_params, y, z, options.mu_initial)
