@@ -697,7 +697,9 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
     """A batch of B problems solved in ``lanes`` lanes of one program (the whole batch where it fits):
     each lane iterates one problem and, as soon as it finishes, takes the next waiting one, so that a
     batch larger than its program costs the sum of its problems' iterations, not its slowest problem's
-    iterations times its chunks (see :func:`solve`)."""
+    iterations times its chunks (see :func:`solve`). While problems wait for a lane, the lanes run
+    blocks of one iteration, so that a finished lane is refilled at once; then blocks of
+    ``options.block``."""
     batch = x0.shape[0]
     y0, z0 = multipliers
     size = padded_batch(min(lanes, batch))
@@ -720,9 +722,11 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
     latest = {key: np.full(batch, np.inf) for key in _ROW_KEYS} | {"done": np.zeros(batch, bool)}
     steps, quorum_at = 0, None
     while np.any(lane >= 0):
-        until = np.minimum(iterations + options.block, options.max_iterations).astype(np.int32)
+        # one iteration at a time while problems wait (a lane that finished idles until its block ends)
+        block = 1 if waiting < batch else options.block
+        until = np.minimum(iterations + block, options.max_iterations).astype(np.int32)
         state = compiled.block(structure, lane_params, state, until)
-        steps += options.block
+        steps += block
         host = jax.tree.map(np.asarray, _lane_rows(state))
         iterations = host["iteration"]
         active = np.flatnonzero(lane >= 0)
