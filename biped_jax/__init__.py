@@ -14,6 +14,15 @@ checks do not wait for JAX and MuJoCo to import.
 """
 
 import importlib
+import os
+
+#: XLA's CPU runtime can deadlock in its multi-threaded Eigen pool on large vmapped programs (known:
+#: openxla/xla and JAX users report the same stacks): the co-design's gait problem in a batch of 48 hung
+#: twice in ``block_until_ready`` with every XLA thread idle (2-core CPU, jax 0.10.2, 2026-12-05), and
+#: finished in 96 s with the pool off; a batch in 16 lanes took 76.9 s with it off, 75.9 s on. Set on
+#: import, before JAX starts its backend (it reads XLA_FLAGS then); a value the user set is kept.
+if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
 
 _MODULES = {
     "robots.design": ("Design", "apply_design", "check_design", "design_layout"),

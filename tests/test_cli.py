@@ -238,3 +238,16 @@ def test_the_compilation_cache_can_be_moved(tmp_path):
                        check=True, timeout=300)
         entries.append(sorted(p.name for p in folder.iterdir() if p.name.startswith("jit_")))
     assert entries[0] and entries[0] == entries[1]
+
+
+def test_importing_the_package_turns_off_xlas_multi_threaded_eigen_pool_unless_the_user_chose():
+    """The pool deadlocked a batched solve (biped_jax/__init__.py); the flag must be in XLA_FLAGS
+    before JAX starts its backend, and a user's own choice of it stays."""
+    def flags(value):
+        env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+        env |= {} if value is None else {"XLA_FLAGS": value}
+        return subprocess.run([sys.executable, "-c", "import os, biped_jax; print(os.environ['XLA_FLAGS'])"],
+                              env=env, capture_output=True, text=True, check=True).stdout.strip()
+    assert flags(None) == "--xla_cpu_multi_thread_eigen=false"
+    assert flags("--xla_dump_to=/tmp/x") == "--xla_dump_to=/tmp/x --xla_cpu_multi_thread_eigen=false"
+    assert flags("--xla_cpu_multi_thread_eigen=true") == "--xla_cpu_multi_thread_eigen=true"
