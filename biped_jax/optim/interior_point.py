@@ -575,8 +575,9 @@ def solve(problem: nlp.ConstrainedProblem, x0, params, options: InteriorPointOpt
       compiled: from :func:`compile_problem` with the same :func:`loop_options`, to reuse across calls.
       multipliers: (y0 (B, m_h), z0 (B, m_g)) to warm-start with (of the unscaled problem; z0 <= 0 where
         unknown); None: zero and mu / s.
-      progress: called after every block with (iteration, {"cost", "violation", "error", "mu": (B,),
-        "done": (B,) bool}).
+      progress: called after every block with (the iterations the lanes have run, {"cost", "violation",
+        "error", "mu", "gradients", "stationarity": (B,), "done": (B,) bool}: each problem's latest
+        values, inf for a problem still waiting for a lane).
 
     The problems run in lanes of one program (``options.lanes``, default the whole batch), padded to
     :func:`padded_batch` lanes (copies of the first problem that never iterate) so that batches of nearby
