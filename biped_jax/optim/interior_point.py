@@ -758,8 +758,13 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
             state = state._replace(code=jnp.where(jnp.asarray(lane >= 0), state.code, _PADDING))
         if progress:
             progress(steps, dict(latest))
+    return _pooled_result(results, rows, options, time.perf_counter() - started)
+
+
+def _pooled_result(results: list, rows: list, options, wall_time_s: float) -> nlp.SolveResult:
+    """The batch's result from each problem's final state (on the host) and its rows per block (the
+    history: a problem that finished early repeats its last row)."""
     final = jax.tree.map(lambda *leaves: np.stack(leaves), *results)
-    # every problem's rows, those that finished early repeating their last
     count = max(len(r) for r in rows)
     history = [{key: np.asarray([r[min(k, len(r) - 1)][key] for r in rows]) for key in rows[0][0]}
                for k in range(count)]
@@ -769,7 +774,6 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
         x=final.x, cost=final.f, equalities=final.h, inequalities=final.g, violation=viol,
         stationarity=final.stationarity,
         status=[_status(int(c), float(v), options) for c, v in zip(final.code, viol)],
-        outer_iterations=final.iteration, gradients=final.evaluations,
-        wall_time_s=time.perf_counter() - started, history=history,
-        multipliers_eq=final.y * final.scale_h / final.scale_f[:, None],
+        outer_iterations=final.iteration, gradients=final.evaluations, wall_time_s=wall_time_s,
+        history=history, multipliers_eq=final.y * final.scale_h / final.scale_f[:, None],
         multipliers_in=final.z * final.scale_g / final.scale_f[:, None])
