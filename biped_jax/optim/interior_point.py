@@ -92,6 +92,7 @@ class InteriorPointOptions:
         runs in that many lanes of one program, each lane taking the next waiting problem as soon as its
         own finishes: where the lanes' work is the device's limit (a CPU, a busy GPU), a batch then costs
         about the sum of its problems' iterations instead of its slowest problem's times the batch.
+        ``quorum`` counts only once every problem has had a lane.
     """
 
     tolerance: float = 1e-8
