@@ -66,9 +66,9 @@ def interior_point_batch(solver, batch: int, reference, lanes: int | None) -> tu
     compile_s = time.perf_counter() - started
     started = time.perf_counter()
     solutions = codesign.solve_designs(solver, designs, 0.555, 20.0, x0=x0, multipliers=multipliers,
-                                       progress=lambda i, row: print(
+                                       progress=lambda i, row: i % 10 == 0 and print(
         f"  batch {batch}, iteration {i}: {time.perf_counter() - started:.0f} s, {int(np.sum(row['done']))} "
-        f"finished", flush=True))
+        f"finished", flush=True))  # lanes report after every iteration while designs wait
     seconds = time.perf_counter() - started
     count = converged(solutions)
     iterations = [s.outer_iterations for s in solutions]
