@@ -690,9 +690,16 @@ _ROW_KEYS = ("cost", "violation", "error", "mu", "gradients", "stationarity")
 
 
 def _lane_rows(state: State) -> dict:
+    """What the host reads of every lane after a block: the rows' values, the code and the iteration."""
     return {"cost": state.f, "violation": jax.vmap(violation)(state.h, state.g), "error": state.error,
             "mu": state.mu, "gradients": state.evaluations, "stationarity": state.stationarity,
             "code": state.code, "iteration": state.iteration}
+
+
+def _latest(rows: list) -> dict:
+    """Each problem's last row as (B,) arrays (inf, and not done, for a problem still waiting for a lane)."""
+    waiting = {key: np.inf for key in _ROW_KEYS} | {"done": False}
+    return {key: np.asarray([(r[-1] if r else waiting)[key] for r in rows]) for key in waiting}
 
 
 def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, progress, started) -> nlp.SolveResult:
@@ -704,7 +711,7 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
     ``options.block``."""
     batch = x0.shape[0]
     y0, z0 = multipliers
-    size = padded_batch(min(lanes, batch))
+    size = padded_batch(lanes)
     sharding = batch_sharding(size)
 
     def rows_of(problems):
@@ -713,15 +720,17 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
         taken = jax.tree.map(lambda a: jnp.asarray(a)[rows], (x0, params, y0, z0))
         return taken if sharding is None else jax.device_put(taken, sharding)
 
+    def parked(state):
+        """``state`` with the lanes that hold no problem marked as padding (they never iterate)."""
+        return state._replace(code=jnp.where(jnp.asarray(lane >= 0), state.code, _PADDING))
+
     lane = np.where(np.arange(size) < batch, np.arange(size), -1)   # the problem in each lane, -1: none
     waiting = int(np.sum(lane >= 0))                                  # the next problem to start
     x, lane_params, y, z = rows_of(lane)
-    state = compiled.initial(x, lane_params, y, z, options.mu_initial)
-    state = state._replace(code=jnp.where(jnp.asarray(lane >= 0), state.code, _PADDING))
+    state = parked(compiled.initial(x, lane_params, y, z, options.mu_initial))
     iterations = np.zeros(size, np.int32)
     results = [None] * batch     # per problem: its lane's final state, on the host
-    rows = [[] for _ in range(batch)]
-    latest = {key: np.full(batch, np.inf) for key in _ROW_KEYS} | {"done": np.zeros(batch, bool)}
+    rows = [[] for _ in range(batch)]   # per problem: its rows, one per block it ran
     steps, quorum_at = 0, None
     while np.any(lane >= 0):
         # one iteration at a time while problems wait (a lane that finished idles until its block ends)
@@ -734,11 +743,8 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
         active = np.flatnonzero(lane >= 0)
         finished = (host["code"][active] != _RUNNING) | (iterations[active] >= options.max_iterations)
         for at in active:
-            row = {key: host[key][at] for key in _ROW_KEYS} | {"done": host["code"][at] != _RUNNING}
-            rows[lane[at]].append(row)
-            for key, value in row.items():
-                latest[key][lane[at]] = value
-        if quorum_at is None and waiting == batch and latest["done"].mean() >= options.quorum:
+            rows[lane[at]].append({key: host[key][at] for key in _ROW_KEYS} | {"done": host["code"][at] != _RUNNING})
+        if quorum_at is None and waiting == batch and _latest(rows)["done"].mean() >= options.quorum:
             quorum_at = steps
         if quorum_at is not None and steps - quorum_at >= options.patience:
             finished[:] = True                  # the quorum's patience is over: the rest stop here
@@ -756,9 +762,9 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
                 fresh = compiled.initial(x, new_params, y, z, options.mu_initial)
                 state, lane_params = _refilled(jnp.asarray(starting), (fresh, new_params), (state, lane_params))
                 iterations = np.where(starting, 0, iterations)
-            state = state._replace(code=jnp.where(jnp.asarray(lane >= 0), state.code, _PADDING))
+            state = parked(state)
         if progress:
-            progress(steps, dict(latest))
+            progress(steps, _latest(rows))
     return _pooled_result(results, rows, options, time.perf_counter() - started)
 
 
