@@ -235,6 +235,9 @@ def _parser() -> argparse.ArgumentParser:
     design.add_argument("--starts", type=_integer("starts", 2, 4096), default=64,
                         help="starting designs per problem of the co-optimisation, 2-4096 (default 64; a power of "
                              "two keeps the Sobol sequence balanced)")
+    design.add_argument("--lanes", type=_integer("lanes", 1, 4096), default=None,
+                        help="designs the co-optimisation iterates at once, 1-4096; a design that finishes hands "
+                             "its lane to the next (default 8 on a CPU, the whole batch on a GPU)")
     design.add_argument("--quick", action="store_true",
                         help="a first look in minutes: only the co-optimisation, 8 starts per problem, 2 iterations "
                              "(overrides --starts/--iterations); every file it writes says so")

@@ -154,7 +154,7 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
 
 
 def codesign(out: Path, settings, iterations: int, resume: bool = False, starts: int = 64,
-             quick: bool = False) -> dict:
+             quick: bool = False, lanes: int | None = None) -> dict:
     """The co-design studies; see :mod:`biped_jax.studies.codesign`. ``quick``: study (d) alone with
     :data:`~biped_jax.studies.codesign.QUICK_STARTS` starts and ``QUICK_ITERATIONS`` iterations
     (``starts`` and ``iterations`` ignored), every file stamped."""
@@ -168,7 +168,7 @@ def codesign(out: Path, settings, iterations: int, resume: bool = False, starts:
         if quick:
             console.log(codesign_study.QUICK_STAMP)
         results = codesign_study.run_codesign(out, settings, iterations, progress, resume=resume, starts=starts,
-                                              optimisation_only=quick)
+                                              optimisation_only=quick, lanes=lanes)
     if not quick:
         for speed, fit in results["mass_scaling"]["fits"].items():
             console.print(f"(a) {speed} m/s: peak joint power ~ M^{fit['peak_power_exponent']:.2f}, Joule energy per "
@@ -404,7 +404,7 @@ def run_humanoid(args) -> int:
 
 def run_codesign(args) -> int:
     configure_jax()
-    codesign(args.out, _settings(args), args.iterations, args.resume, args.starts, args.quick)
+    codesign(args.out, _settings(args), args.iterations, args.resume, args.starts, args.quick, args.lanes)
     return 0
 
 

@@ -42,6 +42,7 @@ CLI_ROWS = [
     (["humanoid", "--model", "M9"], "'M9'"),
     (["codesign", "--iterations", "0"], "--iterations must be an integer in [1, 1000], got '0'"),
     (["codesign", "--starts", "1"], "--starts must be an integer in [2, 4096], got '1'"),
+    (["codesign", "--lanes", "0"], "--lanes must be an integer in [1, 4096], got '0'"),
     (["reproduce", "--dynamics", "euler"], "'euler'"),
     (["solve", "--speed", "0"], "--speed must be a number in (0, 5], got '0'"),
     (["solve", "--power-limit", "nan"], "--power-limit must be a number in (0, 1e+06], got 'nan'"),

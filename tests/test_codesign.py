@@ -507,3 +507,12 @@ def test_the_study_starts_from_the_paper_design_and_snaps_each_joint_to_the_cata
     np.testing.assert_allclose(design.drive_offset, [0.0, 0.8, 0.0, 0.8])
     with pytest.raises(ValueError, match="give one motor or four"):
         codesign.catalogue_design(("RE25-42V",) * 3)
+
+
+def test_the_study_runs_its_designs_in_eight_lanes_on_a_cpu_unless_told():
+    """Study (d)'s lanes: 8 on the CPU the tests run on (measured the fastest on 2 cores), the user's
+    number where given (``biped-jax codesign --lanes``)."""
+    from biped_jax.studies import codesign as codesign_study
+    assert jax.default_backend() == "cpu"
+    assert codesign_study.design_lanes() == codesign_study.CPU_LANES == 8
+    assert codesign_study.design_lanes(32) == 32

@@ -186,6 +186,10 @@ STARTS = 64
 #: runs to the iteration cap and, on a batched loop, costs every design its iterations (a first batch of
 #: 64 starts on 2 CPU cores ran over 20 minutes). A design cut off is masked like one that fails.
 DESIGN_OPTIONS = dataclasses.replace(IP_WARM_OPTIONS, quorum=0.9, patience=60)
+#: Lanes of study (d)'s batch on a CPU (``InteriorPointOptions.lanes``): a design that finishes hands
+#: its lane to the next one. Measured on 2 cores, 32 warm-started designs: 49.0 s in 8 lanes, 51.0 s in
+#: 4, 54.3 s in 16, 59.8 s all at once (benchmarks/RESULTS.md). On an accelerator the whole batch.
+CPU_LANES = 8
 #: Study (d)'s bounds of the knee drives' place: anywhere from the knee (0) up the thigh to the hip (1).
 DRIVE_OFFSET_BOUNDS = (0.0, 1.0)
 #: CMA-ES's initial step in study (d), in the variables scaled to [0, 1] within their bounds.
@@ -195,6 +199,14 @@ CMAES_SIGMA = 0.2
 #: One design at many variables (V,) -> (B, V): the designs of study (d)'s starts and CMA-ES's
 #: generations, one compiled program.
 _designs_at = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
+
+
+def design_lanes(lanes: int | None = None) -> int | None:
+    """Study (d)'s lanes: ``lanes`` where given, else :data:`CPU_LANES` on a CPU and the whole batch
+    (None) on an accelerator."""
+    if lanes is not None:
+        return lanes
+    return CPU_LANES if jax.default_backend() == "cpu" else None
 
 
 def design_starts(paper: codesign.DriveDesign, count: int, low, high, seed: int = 0) -> np.ndarray:
@@ -282,7 +294,7 @@ def energy_reduction(paper: dict, best: dict | None) -> dict | None:
 
 
 def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: int = STARTS,
-                    problems=DESIGN_PROBLEMS, baseline: bool = True) -> dict:
+                    problems=DESIGN_PROBLEMS, baseline: bool = True, lanes: int | None = None) -> dict:
     """Study (d): per problem (:data:`DESIGN_PROBLEMS`) the gear ratio and the winding per joint, the
     structure's mass split and the knee drives' place co-optimised with the gait
     (:func:`~biped_jax.codesign.co_optimise`, the variables within
@@ -296,9 +308,9 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     drive verdicts, its reduction against the paper design, and at its continuous design the gradient
     against central differences of re-solved optima; with ``baseline`` CMA-ES over the same variables
     (:func:`cmaes_baseline`), as many generations of ``starts`` designs as the gradient method had
-    batch solves. Every batch with :data:`DESIGN_OPTIONS`."""
+    batch solves. Every batch with :data:`DESIGN_OPTIONS` in :func:`design_lanes` (``lanes``)."""
     catalogue = drive_model.load_catalogue()
-    solver = solver.using(DESIGN_OPTIONS)
+    solver = solver.using(dataclasses.replace(DESIGN_OPTIONS, lanes=design_lanes(lanes)))
     low, high = codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue),
                                        drive_offset_bounds=DRIVE_OFFSET_BOUNDS)
     papers = [codesign.catalogue_design(mass_class=p.mass_class, catalogue=catalogue) for p in problems]
@@ -408,13 +420,14 @@ QUICK_STAMP = ("QUICK LOOK (biped-jax codesign --quick): study (d) alone, 8 star
 
 def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.GaitSettings(dynamics="chain"),
                  iterations: int = 5, progress: Callable[[str], None] | None = None, resume: bool = False,
-                 starts: int = STARTS, optimisation_only: bool = False) -> dict:
+                 starts: int = STARTS, optimisation_only: bool = False, lanes: int | None = None) -> dict:
     """The four studies (``optimisation_only``: study (d) alone); writes codesign.json and
     codesign_{pareto,mass_scaling,speed,optimisation}.png. The batched interior point solves every
     batch: :data:`IP_OPTIONS` for the reference gait, :data:`IP_WARM_OPTIONS` otherwise; single-shot
     settings are shot in a segment per knot span. Every gait holds its drives' gear limits (intermittent
-    output torque, input speed: ``GaitSettings.drive_limits``). Study (d) runs ``starts`` designs per problem for
-    ``iterations`` iterations. Each finished study is kept in ``out/stages``
+    output torque, input speed: ``GaitSettings.drive_limits``). Study (d) runs ``starts`` designs per
+    problem for ``iterations`` iterations in ``lanes`` lanes (:func:`design_lanes`: 8 on a CPU, the
+    whole batch on an accelerator). Each finished study is kept in ``out/stages``
     (:func:`biped_jax.report.outputs.stage`); ``resume`` takes those written with the same settings
     instead of solving them again."""
     from biped_jax.codesign import plots as codesign_plots
@@ -430,7 +443,7 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
                             "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,
                             "drive_limits": settings.drive_limits,
                             "dynamics": settings.dynamics, "solver": "interior point", "starts_per_problem": starts,
-                            "iterations": iterations}}
+                            "iterations": iterations, "co_optimisation_lanes": design_lanes(lanes)}}
     save = lambda: outputs.write_json(out / "codesign.json", results)  # noqa: E731
     key = {"settings": dataclasses.asdict(settings), "options": dataclasses.asdict(options)}
     kept = lambda name, compute, **more: outputs.stage(out, f"codesign_{name}", {**key, **more}, compute,  # noqa: E731
@@ -448,7 +461,7 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
         save()
         codesign_plots.plot_speed_limits(results["speed_limits"], out / "codesign_speed.png")
     results["co_optimisation"] = kept("co_optimisation", lambda: co_optimisation(solver, x_start, say, iterations,
-                                                                             starts),
+                                                                             starts, lanes=lanes),
                                       iterations=iterations, starts=starts)
     save()
     codesign_plots.plot_optimisation(results["co_optimisation"], out / "codesign_optimisation.png")
