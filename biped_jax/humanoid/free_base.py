@@ -1,0 +1,124 @@
+"""The 16-DoF humanoid with its free base and flat feet, its drives in the loop, for the 3D walk.
+
+The model is ``models/humanoid16_flatfoot_<mass class>.xml`` (free joint ``root`` on the torso, box
+feet 0.16 x 0.09 m) with the contact of the planarised replay (:mod:`biped_jax.humanoid.model`) and every
+actuated joint's drive: the gearhead's reflected inertia as the joint's armature, the torque clipped to
+the drive's speed-torque line at the joint's speed (:func:`drive_torques`, the motor model DONALD's walk
+uses: :func:`biped_jax.drives.model.torque_limits`).
+
+Coordinates: qpos = (x, y, z of the torso frame (m), its quaternion (w, x, y, z), 16 joints (rad) in
+actuator order); qvel = (linear velocity (world, m/s), angular velocity (torso frame, rad/s), 16 joint
+rates (rad/s)).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from biped_jax.drives import model as drive_model
+from biped_jax.humanoid.model import FOOT_SOLIMP, FOOT_SOLREF, IMPRATIO, SIDES, TIMESTEP
+from biped_jax.robots import registry
+from biped_jax.robots.mjcf import HUMANOID_ACTUATED_JOINTS
+
+#: The drive of every joint: the pair the drive-train study recommends for both mass classes under the
+#: paper's criterion (speed-torque line and gear limits; docs/studies.md, "Drive train").
+WALK_MOTOR, WALK_GEARHEAD = "RE25-118754", "GP32A-51"
+#: A leg's joints in the model's (and the actuators') order.
+LEG_JOINTS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_roll")
+
+
+def walk_drives(motor: str = WALK_MOTOR, gearhead: str = WALK_GEARHEAD,
+                supply_voltage: float | None = None) -> drive_model.JointDrives:
+    """One catalogue drive at every joint (fields of shape ()), at the catalogue's supply voltage unless
+    given (V); raises ValueError naming an unknown part."""
+    catalogue = drive_model.load_catalogue()
+    voltage = catalogue.supply_voltage if supply_voltage is None else supply_voltage
+    return drive_model.catalogue_drives(motor, gearhead, voltage, catalogue)
+
+
+def free_base_humanoid(mass_class: str = "12kg", drives: drive_model.JointDrives | None = None) -> mujoco.MjModel:
+    """The flat-foot humanoid of ``mass_class`` with its free base, time step :data:`TIMESTEP`, the
+    replay's foot contact, and each actuated joint's armature the drive's reflected inertia (``drives``,
+    default :func:`walk_drives`)."""
+    if mass_class not in ("12kg", "18kg"):
+        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: '12kg', '18kg'")
+    drives = walk_drives() if drives is None else drives
+    spec = mujoco.MjSpec.from_file(str(registry.model_path(f"humanoid16_flatfoot_{mass_class}")))
+    spec.option.timestep = TIMESTEP
+    spec.option.impratio = IMPRATIO
+    for side in SIDES:
+        foot = spec.geom(f"foot_{side}")
+        foot.solref, foot.solimp = FOOT_SOLREF, FOOT_SOLIMP
+    model = spec.compile()
+    inertia = np.broadcast_to(np.asarray(drives.reflected_inertia, dtype=float), (model.nu,))
+    for actuator in range(model.nu):
+        model.dof_armature[model.jnt_dofadr[model.actuator_trnid[actuator, 0]]] = inertia[actuator]
+    return model
+
+
+@dataclasses.dataclass(frozen=True)
+class FreeLayout:
+    """Indices into the free-base model (static).
+
+    Attributes:
+      qpos, qvel: each actuator's joint in qpos and qvel, (16,).
+      legs: the actuators of leg l and leg r in :data:`LEG_JOINTS` order, (2, 6).
+      arms: the shoulder actuators, (4,).
+      torso, feet, thighs: body ids (feet, thighs: (l, r)). foot_sites: site ids (l, r).
+      mass: the robot's mass, kg.
+    """
+
+    qpos: tuple[int, ...]
+    qvel: tuple[int, ...]
+    legs: tuple[tuple[int, ...], tuple[int, ...]]
+    arms: tuple[int, ...]
+    torso: int
+    feet: tuple[int, int]
+    thighs: tuple[int, int]
+    foot_sites: tuple[int, int]
+    mass: float
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel) -> "FreeLayout":
+        names = [model.actuator(a).name for a in range(model.nu)]
+        if tuple(names) != HUMANOID_ACTUATED_JOINTS:
+            raise ValueError(f"the model's actuators {names} are not the humanoid's {HUMANOID_ACTUATED_JOINTS}")
+        body = lambda name: int(model.body(name).id)  # noqa: E731
+        return cls(qpos=tuple(int(model.joint(n).qposadr[0]) for n in names),
+                   qvel=tuple(int(model.joint(n).dofadr[0]) for n in names),
+                   legs=tuple(tuple(names.index(f"{j}_{s}") for j in LEG_JOINTS) for s in SIDES),
+                   arms=tuple(i for i, n in enumerate(names) if n.startswith("shoulder")),
+                   torso=body("torso"), feet=tuple(body(f"foot_{s}") for s in SIDES),
+                   thighs=tuple(body(f"thigh_{s}") for s in SIDES),
+                   foot_sites=tuple(int(model.site(f"foot_{s}").id) for s in SIDES),
+                   mass=float(model.body_subtreemass[0]))
+
+
+def drive_torques(drives: drive_model.JointDrives, command: jax.Array, joint_speed: jax.Array
+                  ) -> tuple[jax.Array, jax.Array]:
+    """(applied torque, (low, high) limits), shapes (J,), (2, J), N m: ``command`` (J,) clipped to what
+    each drive gives at its joint's speed (J,), rad/s (the speed-torque line through the gear's
+    efficiency, and the gear's intermittent torque); traceable."""
+    low, high = drive_model.torque_limits(drives, joint_speed)
+    return jnp.clip(command, low, high), jnp.stack([low, high])
+
+
+def external_forces(model, data) -> jax.Array:
+    """The force of the surroundings (the ground) on each body at MJX ``data`` after its constraint
+    forces are found (after ``mjx.forward``), world frame, (nbody, 3), N."""
+    mjx = registry.import_mjx()
+    return mjx.rne_postconstraint(model, data)._impl.cfrc_ext[:, 3:]
+
+
+def momentum(model, data) -> tuple[jax.Array, jax.Array]:
+    """(linear momentum (3,), N s; angular momentum about the centre of mass (3,), N m s) of the robot at
+    MJX ``data`` (after ``mjx.forward``), world frame."""
+    mjx = registry.import_mjx()
+    data = mjx.subtree_vel(model, data)
+    mass = model.body_subtreemass[0]
+    return mass * data._impl.subtree_linvel[0], data._impl.subtree_angmom[0]

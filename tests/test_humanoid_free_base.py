@@ -1,0 +1,109 @@
+"""The free-base flat-foot humanoid in MJX: momentum balance under contact and in flight, the drives'
+armature and torque clipping."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from biped_jax.drives import model as drive_model
+from biped_jax.humanoid import free_base
+from biped_jax.robots import registry
+
+mjx = registry.import_mjx()
+
+STEPS = 60
+
+
+@pytest.fixture(scope="module")
+def robot():
+    mj_model = free_base.free_base_humanoid("12kg")
+    return mj_model, free_base.FreeLayout.of(mj_model), registry.put_mjx_model(mj_model)
+
+
+def _rollout(model, layout, qpos, qvel, torques):
+    """STEPS Euler steps under joint ``torques`` (STEPS, 16): per step (linear momentum, angular
+    momentum about the centre of mass, the ground's force on the robot) at the step's start."""
+    def step(data, u):
+        data = mjx.forward(model, data.replace(ctrl=u))
+        linear, angular = free_base.momentum(model, data)
+        ground = jnp.sum(free_base.external_forces(model, data), axis=0)
+        return mjx.euler(model, data), (linear, angular, ground)
+    data = mjx.make_data(model).replace(qpos=qpos, qvel=qvel)
+    return jax.tree.map(np.asarray, jax.jit(lambda d, u: jax.lax.scan(step, d, u))(data, torques)[1])
+
+
+def _standing(mj_model, layout, height):
+    qpos = np.array(mj_model.qpos0)
+    qpos[2] = 0.31 + height  # the soles 0.31 m below the torso frame
+    return jnp.asarray(qpos)
+
+
+def test_the_ground_force_is_the_change_of_momentum_under_contact(robot):
+    """Dropped 5 mm onto its flat feet with random joint torques: per 1 ms step the linear momentum
+    changes by (ground force + weight) dt, the force read from MJX's constraint forces (what the walk
+    reports per touchdown), while the feet carry it (the force reaches the weight)."""
+    mj_model, layout, model = robot
+    torques = jnp.asarray(np.random.default_rng(0).normal(0.0, 0.5, (STEPS, mj_model.nu)))
+    linear, _, ground = _rollout(model, layout, _standing(mj_model, layout, 0.005), jnp.zeros(mj_model.nv), torques)
+    weight = np.array([0.0, 0.0, -9.81 * layout.mass])
+    change = np.diff(linear, axis=0) / free_base.TIMESTEP
+    expected = ground[:-1] + weight
+    assert np.max(ground[:, 2]) > 0.8 * 9.81 * layout.mass  # the contact carried it
+    assert np.min(ground[:5, 2]) == 0.0  # and the first steps were in flight
+    scale = 9.81 * layout.mass
+    assert np.max(np.abs(change - expected)) < 0.02 * scale
+
+
+def test_in_flight_the_joints_move_neither_the_centre_of_mass_nor_the_angular_momentum(robot):
+    """High above the ground with random joint torques: the linear momentum changes by the weight alone
+    and the angular momentum about the centre of mass stays (the torques are internal), to the Euler
+    step's first-order error: halving the time step halves both errors."""
+    mj_model, layout, model = robot
+    rng = np.random.default_rng(1)
+    qvel = np.zeros(mj_model.nv)
+    qvel[:6] = rng.normal(0.0, 0.5, 6)
+    torques = rng.normal(0.0, 1.0, (STEPS, mj_model.nu))
+    errors = []
+    for dt in (free_base.TIMESTEP, free_base.TIMESTEP / 2):  # the same program: the step is a model array
+        halved = model.replace(opt=model.opt.replace(timestep=jnp.asarray(dt)))
+        repeat = int(round(free_base.TIMESTEP / dt))
+        linear, angular, ground = _rollout(halved, layout, _standing(mj_model, layout, 1.0), jnp.asarray(qvel),
+                                           jnp.asarray(np.repeat(torques, repeat, axis=0)))  # the same time
+        assert np.all(ground == 0.0)
+        weight = np.array([0.0, 0.0, -9.81 * layout.mass])
+        errors.append((np.max(np.abs(np.diff(linear, axis=0) / dt - weight)),
+                       np.max(np.linalg.norm(angular - angular[0], axis=1))))
+    (linear_error, angular_drift), (linear_half, angular_half) = errors
+    assert linear_error < 0.01 * 9.81 * layout.mass
+    assert 1.6 < linear_error / linear_half < 2.5
+    assert 1.6 < angular_drift / angular_half < 2.5
+
+
+def test_every_joint_carries_its_drives_reflected_inertia(robot):
+    mj_model, layout, _ = robot
+    drives = free_base.walk_drives()
+    np.testing.assert_allclose(mj_model.dof_armature[list(layout.qvel)], float(drives.reflected_inertia))
+    assert np.all(mj_model.dof_armature[:6] == 0.0)  # not on the free base
+
+
+def test_the_torque_is_clipped_to_the_speed_torque_line_at_the_joints_speed():
+    """Inside the line the command passes; beyond it the applied torque is the line's value at that
+    speed (the gear's 6.5 N m at low speed, less where the back EMF bites), on both sides."""
+    drives = free_base.walk_drives()
+    speed = jnp.array([0.0, 0.0, 12.0, 12.0, -12.0, 12.0])
+    command = jnp.array([3.0, -20.0, 20.0, 1.0, -20.0, -20.0])
+    applied, (low, high) = free_base.drive_torques(drives, command, speed)
+    ref_low, ref_high = drive_model.torque_limits(drives, speed)
+    np.testing.assert_allclose(low, ref_low)
+    np.testing.assert_allclose(high, ref_high)
+    assert float(high[0]) == pytest.approx(6.5) and float(low[1]) == pytest.approx(-6.5)
+    assert float(high[2]) < 6.5  # the motor's line at 12 rad/s, below the gear's limit
+    np.testing.assert_allclose(applied, [3.0, -6.5, float(high[2]), 1.0, float(low[4]), float(low[5])])
+
+
+def test_an_unknown_mass_class_or_part_is_named():
+    with pytest.raises(ValueError, match="'9kg'"):
+        free_base.free_base_humanoid("9kg")
+    with pytest.raises(ValueError, match="GP32A-7"):
+        free_base.walk_drives(gearhead="GP32A-7")
