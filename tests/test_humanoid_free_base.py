@@ -107,3 +107,31 @@ def test_an_unknown_mass_class_or_part_is_named():
         free_base.free_base_humanoid("9kg")
     with pytest.raises(ValueError, match="GP32A-7"):
         free_base.walk_drives(gearhead="GP32A-7")
+
+
+def test_standing_on_one_leg_loads_the_hip_roll_with_the_weight_beyond_it(robot):
+    """MuJoCo's inverse dynamics with the ground's wrench on the stance foot: with a level pelvis the
+    stance hip's roll joint carries the weight of everything beyond it times its lever arm (summed here
+    body by body), whether the foot stands under the hip or under the centre of mass; there the ankle's
+    roll torque vanishes (the centre of pressure under the centre of mass)."""
+    mj_model, layout, _ = robot
+    import mujoco
+    data = mujoco.MjData(mj_model)
+    mujoco.mj_kinematics(mj_model, data)
+    hip = data.xpos[layout.thighs[0]]
+    stance_leg = {layout.thighs[0], layout.feet[0], int(mj_model.body("shank_l").id)}
+    lever = sum(mj_model.body_mass[b] * 9.81 * (hip[1] - data.xipos[b][1]) for b in range(1, mj_model.nbody)
+                if b not in stance_leg)
+    roll, ankle = layout.legs[0][1], layout.legs[0][5]
+    standing = free_base.single_support_torques(mj_model, mj_model.qpos0, 0)
+    assert standing[roll] == pytest.approx(lever, rel=1e-9) and lever > 5.0
+    inclined = np.array(mj_model.qpos0)
+    low, high = 0.0, 0.5  # the leg's inclination that puts the centre of mass over the foot
+    for _ in range(50):
+        phi = 0.5 * (low + high)
+        inclined[layout.qpos[roll]], inclined[layout.qpos[ankle]] = -phi, phi
+        low, high = (phi, high) if free_base.single_support_torques(mj_model, inclined, 0)[ankle] > 0 else (low, phi)
+    over = free_base.single_support_torques(mj_model, inclined, 0)
+    assert abs(over[ankle]) < 1e-6 * lever and over[roll] == pytest.approx(lever, rel=1e-9)
+    mirrored = free_base.single_support_torques(mj_model, mj_model.qpos0, 1)
+    assert mirrored[layout.legs[1][1]] == pytest.approx(-lever, rel=1e-9)

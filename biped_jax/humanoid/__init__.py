@@ -13,7 +13,8 @@ support switches when the swing foot's ground force rises in the second half of 
 
 Modules: ``model`` (the planarised humanoid, joint layout), ``reference`` (the gait sampled by phase),
 ``controller``, ``walk`` (the compiled replay), ``touchdown`` (touchdowns against the
-impact map, MuJoCo C), ``report``; their public names are re-exported here.
+impact map, MuJoCo C), ``report``; their public names are re-exported here. ``free_base``: the
+free-base flat-foot humanoid with its drives in the loop, for a walk in 3D (its own namespace).
 """
 
 from biped_jax.humanoid.controller import (

@@ -13,6 +13,7 @@ rates (rad/s)).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import jax
@@ -122,3 +123,32 @@ def momentum(model, data) -> tuple[jax.Array, jax.Array]:
     data = mjx.subtree_vel(model, data)
     mass = model.body_subtreemass[0]
     return mass * data._impl.subtree_linvel[0], data._impl.subtree_angmom[0]
+
+
+def single_support_torques(mj_model: mujoco.MjModel, qpos: np.ndarray, stance: int) -> np.ndarray:
+    """The joint torques that hold pose ``qpos`` still on foot ``stance`` (0 = l, 1 = r) alone, in
+    actuator order, (16,), N m: MuJoCo's inverse dynamics at zero velocity and acceleration with the
+    ground's wrench on that foot chosen so that the free base needs no force (the whole weight on the
+    foot, the centre of pressure where the pose puts it, wherever that is). What a drive must give to
+    stand on one leg in that pose; e.g. a level pelvis with the other leg hanging loads the stance hip's
+    roll joint with the weight of everything beyond it times its lever arm."""
+    layout = FreeLayout.of(mj_model)
+    mj_model = copy.deepcopy(mj_model)
+    mj_model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # the ground acts through the wrench alone
+    data = mujoco.MjData(mj_model)
+    data.qpos[:] = qpos
+    mujoco.mj_inverse(mj_model, data)  # zero velocity and acceleration: the generalised force gravity needs
+    needed = data.qfrc_inverse.copy()
+    foot = layout.feet[stance]
+    point = data.xipos[foot].copy()
+
+    def generalised(wrench):
+        """J^T of the foot's wrench (force, torque at its centre of mass), (nv,)."""
+        force = np.zeros(mj_model.nv)
+        mujoco.mj_applyFT(mj_model, data, wrench[:3], wrench[3:], point, foot, force)
+        return force
+
+    # the ground's wrench on the foot carries the free base (6 rows, 6 unknowns); the joints give the rest
+    columns = np.column_stack([generalised(unit) for unit in np.eye(6)])
+    wrench = np.linalg.solve(columns[:6], needed[:6])
+    return (needed - columns @ wrench)[list(layout.qvel)]
