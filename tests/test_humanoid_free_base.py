@@ -107,6 +107,11 @@ def test_an_unknown_mass_class_or_part_is_named():
         free_base.free_base_humanoid("9kg")
     with pytest.raises(ValueError, match="GP32A-7"):
         free_base.walk_drives(gearhead="GP32A-7")
+    model = free_base.free_base_humanoid("12kg")
+    with pytest.raises(ValueError, match="got 2"):
+        free_base.single_support_torques(model, model.qpos0, 2)
+    with pytest.raises(ValueError, match=r"\(23,\)"):
+        free_base.single_support_torques(model, model.qpos0[:7], 0)
 
 
 def test_standing_on_one_leg_loads_the_hip_roll_with_the_weight_beyond_it(robot):

@@ -132,6 +132,11 @@ def single_support_torques(mj_model: mujoco.MjModel, qpos: np.ndarray, stance: i
     foot, the centre of pressure where the pose puts it, wherever that is). What a drive must give to
     stand on one leg in that pose; e.g. a level pelvis with the other leg hanging loads the stance hip's
     roll joint with the weight of everything beyond it times its lever arm."""
+    if stance not in (0, 1):
+        raise ValueError(f"stance must be 0 (foot l) or 1 (foot r), got {stance!r}")
+    qpos = np.asarray(qpos, dtype=float)
+    if qpos.shape != (mj_model.nq,):
+        raise ValueError(f"qpos must have shape ({mj_model.nq},), got {qpos.shape}")
     layout = FreeLayout.of(mj_model)
     mj_model = copy.deepcopy(mj_model)
     mj_model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # the ground acts through the wrench alone
