@@ -20,6 +20,7 @@ the share of samples whose command lies beyond the drive's line at that speed.
 """
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
@@ -29,41 +30,61 @@ from _results import save_results
 PREVIEW_DT = 0.005  # s
 PREVIEW_SECONDS = 1.6
 STANDING = 0.6  # s before the first step
-HIP_Y, THIGH, SHANK, SOLE, SOLE_AHEAD = 0.065, 0.14, 0.15, 0.02, 0.02  # m (docs/models.md)
 LEG_GAINS = ((100.0, 2.0), (300.0, 5.0), (300.0, 5.0), (300.0, 5.0), (200.0, 3.0), (150.0, 2.0))  # per leg joint
 ARM_GAINS = (30.0, 0.5)
 TORSO_GAINS = ((30.0, 1.0), (30.0, 1.0), (10.0, 0.5))  # roll, pitch, yaw: N m/rad, N m s/rad
 
 
-def leg_angles(ankle_from_hip):
+@dataclasses.dataclass(frozen=True)
+class Geometry:
+    """The legs' dimensions, m, read from the model: each hip's offset from the mid-plane, thigh and
+    shank lengths, the sole's thickness and how far its centre lies ahead of the ankle."""
+
+    hip_y: float
+    thigh: float
+    shank: float
+    sole: float
+    sole_ahead: float
+
+    @classmethod
+    def of(cls, mj_model) -> "Geometry":
+        foot = mj_model.geom("foot_l")
+        return cls(hip_y=float(mj_model.body("thigh_l").pos[1]), thigh=float(-mj_model.body("shank_l").pos[2]),
+                   shank=float(-mj_model.body("foot_l").pos[2]), sole=float(2 * foot.size[2]),
+                   sole_ahead=float(foot.pos[0]))
+
+
+def leg_angles(geometry, ankle_from_hip):
     """(hip roll, hip pitch, knee) that put the ankle at ``ankle_from_hip`` (3,) (torso frame), m."""
     x, y, z = ankle_from_hip
+    thigh, shank = geometry.thigh, geometry.shank
     roll = np.arctan2(y, -z)
     height = np.hypot(y, z)
-    knee = np.arccos(np.clip((x * x + height * height - THIGH ** 2 - SHANK ** 2) / (2 * THIGH * SHANK), -1, 1))
-    pitch = np.arctan2(-x, height) - np.arctan2(SHANK * np.sin(knee), THIGH + SHANK * np.cos(knee))
+    knee = np.arccos(np.clip((x * x + height * height - thigh ** 2 - shank ** 2) / (2 * thigh * shank), -1, 1))
+    pitch = np.arctan2(-x, height) - np.arctan2(shank * np.sin(knee), thigh + shank * np.cos(knee))
     return roll, pitch, knee
 
 
-def posture(mj_model, layout, pelvis, ankles):
+def posture(mj_model, layout, geometry, pelvis, ankles):
     """qpos with the torso level at ``pelvis`` (3,) and the ankles at ``ankles`` (2, 3), feet flat."""
     qpos = np.array(mj_model.qpos0)
     qpos[:3], qpos[3:7] = pelvis, (1.0, 0.0, 0.0, 0.0)
     for leg, side in ((0, 1.0), (1, -1.0)):
-        roll, pitch, knee = leg_angles(ankles[leg] - pelvis - np.array([0.0, side * HIP_Y, 0.0]))
+        roll, pitch, knee = leg_angles(geometry, ankles[leg] - pelvis - np.array([0.0, side * geometry.hip_y, 0.0]))
         for joint, angle in zip(layout.legs[leg], (0.0, roll, pitch, knee, -(pitch + knee), -roll)):
             qpos[layout.qpos[joint]] = angle
     return qpos
 
 
-def footstep_plan(steps: int, length: float, step_time: float):
+def footstep_plan(geometry, steps: int, length: float, step_time: float):
     """[(lift-off time, swing leg (0 l, 1 r), from (x, y), to (x, y))], the right foot first, a half step
     to start."""
-    feet = [np.array([0.0, HIP_Y]), np.array([0.0, -HIP_Y])]
+    hip_y = geometry.hip_y
+    feet = [np.array([0.0, hip_y]), np.array([0.0, -hip_y])]
     plan, t = [], STANDING
     for k in range(steps):
         leg = 1 - k % 2
-        target = np.array([feet[1 - leg][0] + (length if k else length / 2), HIP_Y if leg == 0 else -HIP_Y])
+        target = np.array([feet[1 - leg][0] + (length if k else length / 2), hip_y if leg == 0 else -hip_y])
         plan.append((t, leg, feet[leg].copy(), target))
         feet[leg], t = target, t + step_time
     return plan, t
@@ -77,9 +98,10 @@ def phase_of(plan, step_time, t):
     return None, None
 
 
-def ankles_at(plan, step_time, clearance, t):
+def ankles_at(geometry, plan, step_time, clearance, t):
     """Both ankles (2, 3) at time t: a swing foot moves on a smoothstep in x, y, lifted by clearance sin^2."""
-    feet = [np.array([0.0, HIP_Y, SOLE]), np.array([0.0, -HIP_Y, SOLE])]
+    sole = geometry.sole
+    feet = [np.array([0.0, geometry.hip_y, sole]), np.array([0.0, -geometry.hip_y, sole])]
     for start, leg, origin, target in plan:
         if t < start:
             break
@@ -87,9 +109,9 @@ def ankles_at(plan, step_time, clearance, t):
             s = (t - start) / step_time
             blend = s * s * (3 - 2 * s)
             xy = (1 - blend) * origin + blend * target
-            feet[leg] = np.array([xy[0], xy[1], SOLE + clearance * np.sin(np.pi * s) ** 2])
+            feet[leg] = np.array([xy[0], xy[1], sole + clearance * np.sin(np.pi * s) ** 2])
             break
-        feet[leg] = np.array([target[0], target[1], SOLE])
+        feet[leg] = np.array([target[0], target[1], sole])
     return np.stack(feet)
 
 
@@ -142,20 +164,22 @@ def main():
     mj_model = free_base.free_base_humanoid(args.mass_class, drives)
     layout = free_base.FreeLayout.of(mj_model)
     data = mujoco.MjData(mj_model)
-    standing = np.array([[0.0, HIP_Y, SOLE], [0.0, -HIP_Y, SOLE]])
-    data.qpos[:] = posture(mj_model, layout, np.array([0.0, 0.0, args.pelvis_height]), standing)
+    geometry = Geometry.of(mj_model)
+    standing = ankles_at(geometry, [], step_time, 0.0, 0.0)
+    data.qpos[:] = posture(mj_model, layout, geometry, np.array([0.0, 0.0, args.pelvis_height]), standing)
     mujoco.mj_kinematics(mj_model, data)
     mujoco.mj_comPos(mj_model, data)
     com_offset = data.subtree_com[0] - data.qpos[:3]  # the torso frame to the centre of mass, standing
 
-    plan, end = footstep_plan(args.steps, step_length, step_time)
+    plan, end = footstep_plan(geometry, args.steps, step_length, step_time)
     end += 1.0
     grid = np.arange(int(end / PREVIEW_DT) + 1) * PREVIEW_DT
     zmp = []
     for t in grid:
         k, _ = phase_of(plan, step_time, t)
-        feet = ankles_at(plan, step_time, 0.0, t)[:, :2]
-        zmp.append((feet[1 - plan[k][1]] if k is not None else feet.mean(axis=0)) + np.array([SOLE_AHEAD, 0.0]))
+        feet = ankles_at(geometry, plan, step_time, 0.0, t)[:, :2]
+        under = feet[1 - plan[k][1]] if k is not None else feet.mean(axis=0)
+        zmp.append(under + np.array([geometry.sole_ahead, 0.0]))
     com = preview_com(np.array(zmp), float(data.subtree_com[0][2]))
 
     timestep = mj_model.opt.timestep
@@ -166,7 +190,7 @@ def main():
     for k, t in enumerate(times):
         centre = np.array([np.interp(t, grid, com[:, 0]), np.interp(t, grid, com[:, 1])])
         pelvis = np.array([*(centre - com_offset[:2]), args.pelvis_height])
-        qpos = posture(mj_model, layout, pelvis, ankles_at(plan, step_time, args.clearance, t))
+        qpos = posture(mj_model, layout, geometry, pelvis, ankles_at(geometry, plan, step_time, args.clearance, t))
         joints[k] = qpos[list(layout.qpos)]
         air, _ = phase_of(plan, step_time, t)
         stance[k] = -1 if air is None else 1 - plan[air][1]
@@ -200,7 +224,7 @@ def main():
                       applied if clip else command, limits)
 
     run = jax.jit(lambda data, samples: jax.lax.scan(physics_step, data, samples))
-    qpos0 = posture(mj_model, layout, np.array([*(com[0] - com_offset[:2]), args.pelvis_height]), standing)
+    qpos0 = posture(mj_model, layout, geometry, np.array([*(com[0] - com_offset[:2]), args.pelvis_height]), standing)
     data = mjx.forward(model, mjx.make_data(model).replace(qpos=jnp.asarray(qpos0)))
     chunk, parts, started = 1000, [], time.perf_counter()
     for first in range(0, len(times) - chunk + 1, chunk):

@@ -43,7 +43,7 @@ def _rollout(model, layout, qpos, qvel, torques, dt=free_base.TIMESTEP):
 
 def _standing(mj_model, layout, height):
     qpos = np.array(mj_model.qpos0)
-    qpos[2] = 0.31 + height  # the soles 0.31 m below the torso frame
+    qpos[2] += height  # the model stands on its soles
     return jnp.asarray(qpos)
 
 

@@ -4,7 +4,8 @@ The model is ``models/humanoid16_flatfoot_<mass class>.xml`` (free joint ``root`
 feet 0.16 x 0.09 m) with the contact of the planarised replay (:mod:`biped_jax.humanoid.model`) and every
 actuated joint's drive: the gearhead's reflected inertia as the joint's armature, the torque clipped to
 the drive's speed-torque line at the joint's speed (:func:`drive_torques`, the motor model DONALD's walk
-uses: :func:`biped_jax.drives.model.torque_limits`).
+uses: :func:`biped_jax.drives.model.torque_limits`). ``external_forces`` (the ground's force per body) is
+the replay's, :func:`biped_jax.humanoid.model.external_forces`.
 
 Coordinates: qpos = (x, y, z of the torso frame (m), its quaternion (w, x, y, z), 16 joints (rad) in
 actuator order); qvel = (linear velocity (world, m/s), angular velocity (torso frame, rad/s), 16 joint
@@ -22,7 +23,7 @@ import mujoco
 import numpy as np
 
 from biped_jax.drives import model as drive_model
-from biped_jax.humanoid.model import FOOT_SOLIMP, FOOT_SOLREF, IMPRATIO, SIDES, TIMESTEP
+from biped_jax.humanoid.model import SIDES, TIMESTEP, external_forces, with_replay_contact  # noqa: F401 (re-exported)
 from biped_jax.robots import registry
 from biped_jax.robots.mjcf import HUMANOID_ACTUATED_JOINTS
 
@@ -50,12 +51,7 @@ def free_base_humanoid(mass_class: str = "12kg", drives: drive_model.JointDrives
         raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: '12kg', '18kg'")
     drives = walk_drives() if drives is None else drives
     spec = mujoco.MjSpec.from_file(str(registry.model_path(f"humanoid16_flatfoot_{mass_class}")))
-    spec.option.timestep = TIMESTEP
-    spec.option.impratio = IMPRATIO
-    for side in SIDES:
-        foot = spec.geom(f"foot_{side}")
-        foot.solref, foot.solimp = FOOT_SOLREF, FOOT_SOLIMP
-    model = spec.compile()
+    model = with_replay_contact(spec).compile()
     inertia = np.broadcast_to(np.asarray(drives.reflected_inertia, dtype=float), (model.nu,))
     for actuator in range(model.nu):
         model.dof_armature[model.jnt_dofadr[model.actuator_trnid[actuator, 0]]] = inertia[actuator]
@@ -107,13 +103,6 @@ def drive_torques(drives: drive_model.JointDrives, command: jax.Array, joint_spe
     efficiency, and the gear's intermittent torque); traceable."""
     low, high = drive_model.torque_limits(drives, joint_speed)
     return jnp.clip(command, low, high), jnp.stack([low, high])
-
-
-def external_forces(model, data) -> jax.Array:
-    """The force of the surroundings (the ground) on each body at MJX ``data`` after its constraint
-    forces are found (after ``mjx.forward``), world frame, (nbody, 3), N."""
-    mjx = registry.import_mjx()
-    return mjx.rne_postconstraint(model, data)._impl.cfrc_ext[:, 3:]
 
 
 def momentum(model, data) -> tuple[jax.Array, jax.Array]:

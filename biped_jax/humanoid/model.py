@@ -30,6 +30,24 @@ IMPRATIO = 10.0
 SIDES = ("l", "r")
 
 
+def with_replay_contact(spec: mujoco.MjSpec) -> mujoco.MjSpec:
+    """``spec`` (a humanoid's, point or flat feet) with the replays' time step :data:`TIMESTEP`, friction
+    cone (:data:`IMPRATIO`) and foot contact (:data:`FOOT_SOLREF`, :data:`FOOT_SOLIMP`); changed in place."""
+    for side in SIDES:
+        foot = spec.geom(f"foot_{side}")
+        foot.solref, foot.solimp = FOOT_SOLREF, FOOT_SOLIMP
+    spec.option.timestep = TIMESTEP
+    spec.option.impratio = IMPRATIO
+    return spec
+
+
+def external_forces(model, data):
+    """The force of the surroundings (the ground) on each body at MJX ``data`` after its constraint
+    forces are found (after ``mjx.forward``), world frame, (nbody, 3), N."""
+    mjx = registry.import_mjx()
+    return mjx.rne_postconstraint(model, data)._impl.cfrc_ext[:, 3:]
+
+
 def planarised_humanoid(mass_class: str = "12kg") -> mujoco.MjModel:
     """The point-foot humanoid of ``mass_class`` with its free base replaced by a planar one (slide x,
     slide z, hinge y at the hip centre): the planarising constraint. Time step :data:`TIMESTEP`."""
@@ -46,12 +64,7 @@ def planarised_humanoid(mass_class: str = "12kg") -> mujoco.MjModel:
     for side in SIDES:
         for joint in ("ankle_pitch", "ankle_roll"):
             spec.joint(f"{joint}_{side}").armature = ANKLE_ARMATURE
-    for side in SIDES:
-        foot = spec.geom(f"foot_{side}")
-        foot.solref, foot.solimp = FOOT_SOLREF, FOOT_SOLIMP
-    spec.option.timestep = TIMESTEP
-    spec.option.impratio = IMPRATIO
-    model = spec.compile()
+    model = with_replay_contact(spec).compile()
     # the root joints were added after the legs in the spec's joint list; the body tree puts them first
     assert model.joint("root_x").qposadr[0] == 0 and model.joint("root_pitch").qposadr[0] == 2
     return model

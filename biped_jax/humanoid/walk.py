@@ -22,7 +22,7 @@ from biped_jax.humanoid.controller import (
     sagittal_state,
     with_gains,
 )
-from biped_jax.humanoid.model import Layout, planarised_humanoid, sagittal_columns
+from biped_jax.humanoid.model import Layout, external_forces, planarised_humanoid, sagittal_columns
 from biped_jax.humanoid.reference import GaitReference
 from biped_jax.robots import registry
 
@@ -85,7 +85,7 @@ def _chunk_program(mass_class: str):
         joints = sagittal_state(layout, data.qpos, data.qvel, stance)[2]
         data = mjx.forward(model, data.replace(ctrl=ctrl))
         # the contact force on each foot body (world frame) from MJX's Newton-Euler pass
-        force = mjx.rne_postconstraint(model, data)._impl.cfrc_ext[foot_body, 3:]
+        force = external_forces(model, data)[foot_body]
         data = mjx.euler(model, data)
         feet = data.site_xpos[foot_site]
         landed = (force[1 - stance, 2] > TOUCHDOWN_FORCE) & (phase > 0.5)

@@ -744,7 +744,8 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
         finished = (host["code"][active] != _RUNNING) | (iterations[active] >= options.max_iterations)
         for at in active:
             rows[lane[at]].append({key: host[key][at] for key in _ROW_KEYS} | {"done": host["code"][at] != _RUNNING})
-        if quorum_at is None and waiting == batch and _latest(rows)["done"].mean() >= options.quorum:
+        latest = _latest(rows)
+        if quorum_at is None and waiting == batch and latest["done"].mean() >= options.quorum:
             quorum_at = steps
         if quorum_at is not None and steps - quorum_at >= options.patience:
             finished[:] = True                  # the quorum's patience is over: the rest stop here
@@ -764,7 +765,7 @@ def _solve_pooled(compiled, options, structure, x0, params, multipliers, lanes, 
                 iterations = np.where(starting, 0, iterations)
             state = parked(state)
         if progress:
-            progress(steps, _latest(rows))
+            progress(steps, latest)
     return _pooled_result(results, rows, options, time.perf_counter() - started)
 
 
