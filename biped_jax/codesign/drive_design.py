@@ -13,7 +13,7 @@ link. It maps to the gait problem (:func:`design_gait_model`) as
   constraint beside the power limit |qdot u| <= M_W.
 
 Catalogue designs (:func:`catalogue_design`) carry the exact data of a Maxon motor and gearhead; a
-continuous gear ratio (:func:`with_ratio`) interpolates the gearhead stages.
+continuous gear ratio (:func:`with_ratio`) takes its stage's data, stepping smoothly between stages.
 """
 
 from __future__ import annotations
@@ -171,33 +171,44 @@ def catalogue_design(motor: str | tuple[str, ...] = REFERENCE_MOTOR,
 
 
 def _stage_table(catalogue: drive_model.Catalogue):
-    """Per gearhead stage: geometric-mean ratio, efficiency, inertia, mass, intermittent output torque,
-    largest input speed (numpy, ascending ratio)."""
+    """Per gearhead stage (ascending ratio): smallest and largest catalogue ratio, efficiency, inertia,
+    mass, intermittent output torque, largest input speed (numpy, (stages, 7)); one stage's gearheads
+    share all but the ratio."""
     stages = {}
     for g in catalogue.gearheads.values():
         stages.setdefault(g.stages, []).append(g)
     rows = []
     for _, heads in sorted(stages.items()):
-        ratios = np.array([h.ratio for h in heads])
+        ratios = [h.ratio for h in heads]
         first = heads[0]
-        rows.append((math.exp(np.mean(np.log(ratios))), first.efficiency, first.inertia, first.mass,
+        rows.append((min(ratios), max(ratios), first.efficiency, first.inertia, first.mass,
                      first.intermittent_torque, first.max_input_speed))
     return np.array(rows)
+
+
+def _smoothstep(t: jax.Array) -> jax.Array:
+    """0 below 0, 1 above 1, 3 t^2 - 2 t^3 between: C1 with zero slope at both ends."""
+    t = jnp.clip(t, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
 
 
 def with_ratio(design: DriveDesign, log_ratio: jax.Array,
                catalogue: drive_model.Catalogue | None = None) -> DriveDesign:
     """``design`` with gear ratios exp(log_ratio) ((4,), traceable) and the gear's efficiency, inertia,
-    mass and limits (intermittent torque, input speed) interpolated linearly in log N between the GP 32 A
-    stages (at each stage's geometric-mean ratio): a smooth stand-in for the stage steps, so the ratio can
-    be a continuous design variable (snapped to a catalogue gearhead, the design is checked again).
-    Catalogue designs (:func:`catalogue_design`) carry the exact data of their gearhead."""
+    mass and limits (intermittent torque, input speed) of the GP 32 A stage whose catalogue ratios span
+    N (exactly the catalogue's data there: a continuous design at a catalogue ratio is that gearhead),
+    and in the gaps between stages (33-51:1, 190-246:1) a smooth step in log N from one stage's data to
+    the next (3 t^2 - 2 t^3: continuous with its first derivative, so the envelope gradient with respect
+    to log N has no jump for the co-design to stall on). The ratio can so be a continuous design variable;
+    snapped to a catalogue gearhead, the design is checked again."""
     table = _stage_table(catalogue or drive_model.load_catalogue())
-    log_stage = jnp.log(table[:, 0])
-    interpolate = lambda column: jnp.interp(log_ratio, log_stage, jnp.asarray(table[:, column]))  # noqa: E731
-    return dataclasses.replace(design, ratio=jnp.exp(log_ratio), gear_efficiency=interpolate(1),
-                               gear_inertia=interpolate(2), gear_mass=interpolate(3),
-                               gear_torque_limit=interpolate(4), gear_speed_limit=interpolate(5))
+    values = jnp.asarray(table[:, 2:])  # (stages, 5)
+    gap_low, gap_high = jnp.log(table[:-1, 1]), jnp.log(table[1:, 0])  # (stages - 1,) each
+    steps = _smoothstep((log_ratio[..., None] - gap_low) / (gap_high - gap_low))  # (..., stages - 1)
+    data = values[0] + jnp.einsum("...g,gc->...c", steps, values[1:] - values[:-1])  # (..., 5)
+    return dataclasses.replace(design, ratio=jnp.exp(log_ratio), gear_efficiency=data[..., 0],
+                               gear_inertia=data[..., 1], gear_mass=data[..., 2],
+                               gear_torque_limit=data[..., 3], gear_speed_limit=data[..., 4])
 
 
 #: The mass split's variables: the legs' share of the structure mass (both legs, drives excluded) and
