@@ -346,7 +346,8 @@ def test_the_gradient_check_judges_every_variable_on_its_own(design_solver, rati
     assert all(check["re_solves_converged"])
     errors = "; ".join(f"{v} {e:.2g}" for v, e in zip(check["variables"], check["relative_error"]))
     assert check["max_relative_error"] < 5e-3, errors
-    np.testing.assert_allclose(check["steps"], np.asarray(check["coarse"]["steps"]) * optimise.GRADIENT_CHECK_REFINEMENT)
+    refinement = optimise.GRADIENT_CHECK_REFINEMENT
+    np.testing.assert_allclose(check["steps"], np.asarray(check["coarse"]["steps"]) * refinement)
     # the differences converge: where the given steps leave more than 0.1 %, a quarter of them leaves less
     # (measured here: K1 0.92 % at 0.01 in log N, 0.10 % at 0.0025)
     fine, coarse = np.array(check["relative_error"]), np.array(check["coarse"]["relative_error"])
