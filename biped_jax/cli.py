@@ -255,6 +255,11 @@ def _parser() -> argparse.ArgumentParser:
     view.add_argument("name")
     view.add_argument("--replay", type=Path, default=None,
                       help="an .npz with t and qpos (e.g. out/donald_replay.npz) to play back")
+    view.add_argument("--gif", type=Path, default=None,
+                      help="render the --replay headless into this animated GIF instead of opening the viewer "
+                           "(no display needed: EGL or OSMesa)")
+    view.add_argument("--fps", type=_number("fps", 0.0, 100.0), default=30.0,
+                      help="frames per second of the --gif, in real time (default 30)")
     for name, sub in subcommands.choices.items():
         sub.set_defaults(parser=sub, run=RUNS[name])
     return parser

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -234,6 +235,17 @@ def run_view(args) -> int:
     if replay is not None and replay["qpos"].shape[1] != model.nq:
         args.parser.error(f"--replay {args.replay}: qpos has {replay['qpos'].shape[1]} columns, "
                           f"{args.name} has {model.nq} coordinates")
+    if args.gif is not None:
+        if replay is None:
+            args.parser.error("--gif needs --replay (the motion to render)")
+        from biped_jax.report import animation
+        try:
+            path = animation.write_gif(args.gif, model, replay["t"], replay["qpos"], fps=args.fps)
+        except RuntimeError as error:
+            print(f"biped-jax view: {error}", file=sys.stderr)
+            return 1
+        print(f"wrote {path} ({len(animation.frame_indices(replay['t'], args.fps))} frames)")
+        return 0
     import mujoco
     import mujoco.viewer
     if replay is None:

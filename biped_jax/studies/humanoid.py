@@ -14,6 +14,8 @@ import numpy as np
 
 from biped_jax.gait import problem as gait_problem
 from biped_jax import humanoid
+from biped_jax import robots
+from biped_jax.report import animation
 from biped_jax.report import outputs
 from biped_jax.studies import paper as study
 
@@ -123,7 +125,9 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
                  settings: gait_problem.GaitSettings = gait_problem.GaitSettings(),
                  gaits: Path | None = None, progress: Callable[[str], None] | None = None) -> dict:
     """Replays model ``name``'s optimal step for ``steps`` steps; writes humanoid.json, humanoid_walk.png,
-    humanoid_tracking.png, humanoid_torque_speed.png and humanoid_replay.npz."""
+    humanoid_tracking.png, humanoid_torque_speed.png, humanoid_replay.npz and the animation
+    humanoid_walk.gif (:func:`biped_jax.report.animation.write_gif`; a warning instead where this machine
+    has no OpenGL for headless rendering)."""
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection as drive_selection
     from biped_jax.dynamics import mjx_biped
@@ -154,5 +158,12 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
     drive_selection.plot_motor_workspace(workspace, drive_model.load_catalogue(), (ratio,),
                                          f"humanoid replay of {name}",
                                          out / "humanoid_torque_speed.png", windings=(winding,), window=0.0)
-    outputs.save_npz(out / "humanoid_replay.npz", compressed=True, t=run.t, qpos=free_base_qpos(run.qpos))
+    replay_qpos = free_base_qpos(run.qpos)
+    outputs.save_npz(out / "humanoid_replay.npz", compressed=True, t=run.t, qpos=replay_qpos)
+    say("rendering the walk")
+    try:
+        animation.write_gif(out / "humanoid_walk.gif", robots.load_mj_model(f"humanoid16_{mass_class}"), run.t,
+                            replay_qpos)
+    except RuntimeError as error:  # no OpenGL here: the walk's figures and replay file are still written
+        say(f"warning: no animation of the walk ({error})")
     return report
