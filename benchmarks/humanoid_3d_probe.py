@@ -187,6 +187,7 @@ def main():
     joints = np.zeros((len(times), mj_model.nu))
     feed_forward = np.zeros_like(joints)
     stance = np.full(len(times), -1)
+    statics = free_base.single_support(mj_model)
     for k, t in enumerate(times):
         centre = np.array([np.interp(t, grid, com[:, 0]), np.interp(t, grid, com[:, 1])])
         pelvis = np.array([*(centre - com_offset[:2]), args.pelvis_height])
@@ -196,7 +197,7 @@ def main():
         stance[k] = -1 if air is None else 1 - plan[air][1]
         if k % 5 == 0:  # static torques on the stance foot (both halves while both stand), every 5 ms
             on = [stance[k]] if stance[k] >= 0 else [0, 1]
-            feed_forward[k:k + 5] = np.mean([free_base.single_support_torques(mj_model, qpos, f) for f in on], axis=0)
+            feed_forward[k:k + 5] = np.mean([statics(qpos, f) for f in on], axis=0)
     rates = np.gradient(joints, timestep, axis=0)
 
     model = registry.put_mjx_model(mj_model)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -120,29 +121,40 @@ def single_support_torques(mj_model: mujoco.MjModel, qpos: np.ndarray, stance: i
     ground's wrench on that foot chosen so that the free base needs no force (the whole weight on the
     foot, the centre of pressure where the pose puts it, wherever that is). What a drive must give to
     stand on one leg in that pose; e.g. a level pelvis with the other leg hanging loads the stance hip's
-    roll joint with the weight of everything beyond it times its lever arm."""
-    if stance not in (0, 1):
-        raise ValueError(f"stance must be 0 (foot l) or 1 (foot r), got {stance!r}")
-    qpos = np.asarray(qpos, dtype=float)
-    if qpos.shape != (mj_model.nq,):
-        raise ValueError(f"qpos must have shape ({mj_model.nq},), got {qpos.shape}")
+    roll joint with the weight of everything beyond it times its lever arm. For many poses of one model,
+    :func:`single_support` once and call what it returns."""
+    return single_support(mj_model)(qpos, stance)
+
+
+def single_support(mj_model: mujoco.MjModel) -> Callable[[np.ndarray, int], np.ndarray]:
+    """:func:`single_support_torques` of ``mj_model`` as a function of (qpos, stance), the model's
+    contact-free copy and layout made once."""
     layout = FreeLayout.of(mj_model)
     mj_model = copy.deepcopy(mj_model)
     mj_model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # the ground acts through the wrench alone
     data = mujoco.MjData(mj_model)
-    data.qpos[:] = qpos
-    mujoco.mj_inverse(mj_model, data)  # zero velocity and acceleration: the generalised force gravity needs
-    needed = data.qfrc_inverse.copy()
-    foot = layout.feet[stance]
-    point = data.xipos[foot].copy()
 
-    def generalised(wrench):
-        """J^T of the foot's wrench (force, torque at its centre of mass), (nv,)."""
-        force = np.zeros(mj_model.nv)
-        mujoco.mj_applyFT(mj_model, data, wrench[:3], wrench[3:], point, foot, force)
-        return force
+    def torques(qpos: np.ndarray, stance: int) -> np.ndarray:
+        if stance not in (0, 1):
+            raise ValueError(f"stance must be 0 (foot l) or 1 (foot r), got {stance!r}")
+        qpos = np.asarray(qpos, dtype=float)
+        if qpos.shape != (mj_model.nq,):
+            raise ValueError(f"qpos must have shape ({mj_model.nq},), got {qpos.shape}")
+        data.qpos[:], data.qvel[:], data.qacc[:] = qpos, 0.0, 0.0
+        mujoco.mj_inverse(mj_model, data)  # zero velocity and acceleration: the generalised force gravity needs
+        needed = data.qfrc_inverse.copy()
+        foot = layout.feet[stance]
+        point = data.xipos[foot].copy()
 
-    # the ground's wrench on the foot carries the free base (6 rows, 6 unknowns); the joints give the rest
-    columns = np.column_stack([generalised(unit) for unit in np.eye(6)])
-    wrench = np.linalg.solve(columns[:6], needed[:6])
-    return (needed - columns @ wrench)[list(layout.qvel)]
+        def generalised(wrench):
+            """J^T of the foot's wrench (force, torque at its centre of mass), (nv,)."""
+            force = np.zeros(mj_model.nv)
+            mujoco.mj_applyFT(mj_model, data, wrench[:3], wrench[3:], point, foot, force)
+            return force
+
+        # the ground's wrench on the foot carries the free base (6 rows, 6 unknowns); the joints give the rest
+        columns = np.column_stack([generalised(unit) for unit in np.eye(6)])
+        wrench = np.linalg.solve(columns[:6], needed[:6])
+        return (needed - columns @ wrench)[list(layout.qvel)]
+
+    return torques
