@@ -147,6 +147,9 @@ def main():
     parser.add_argument("--pelvis-height", type=float, default=0.25, help="m (the straight leg reaches 0.31)")
     parser.add_argument("--clearance", type=float, default=0.03, help="swing foot lift, m")
     parser.add_argument("--unclipped", action="store_true", help="torques not clipped to the drives' line")
+    parser.add_argument("--feed-forward", default="static", choices=("static", "inverse-dynamics"),
+                        help="each sample's torques standing still in its pose (default), or the plan's "
+                             "inverse dynamics on the stance foot in single support")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default=None, help="results file stem")
     args = parser.parse_args()
@@ -184,21 +187,30 @@ def main():
 
     timestep = mj_model.opt.timestep
     times = np.arange(int(end / timestep)) * timestep
-    joints = np.zeros((len(times), mj_model.nu))
-    feed_forward = np.zeros_like(joints)
+    feed_forward = np.zeros((len(times), mj_model.nu))
     stance = np.full(len(times), -1)
     statics = free_base.single_support(mj_model)
+    planned = np.empty((len(times), mj_model.nq))
     for k, t in enumerate(times):
         centre = np.array([np.interp(t, grid, com[:, 0]), np.interp(t, grid, com[:, 1])])
         pelvis = np.array([*(centre - com_offset[:2]), args.pelvis_height])
-        qpos = posture(mj_model, layout, geometry, pelvis, ankles_at(geometry, plan, step_time, args.clearance, t))
-        joints[k] = qpos[list(layout.qpos)]
+        planned[k] = posture(mj_model, layout, geometry, pelvis,
+                             ankles_at(geometry, plan, step_time, args.clearance, t))
         air, _ = phase_of(plan, step_time, t)
         stance[k] = -1 if air is None else 1 - plan[air][1]
-        if k % 5 == 0:  # static torques on the stance foot (both halves while both stand), every 5 ms
-            on = [stance[k]] if stance[k] >= 0 else [0, 1]
-            feed_forward[k:k + 5] = np.mean([statics(qpos, f) for f in on], axis=0)
+    joints = planned[:, list(layout.qpos)]
     rates = np.gradient(joints, timestep, axis=0)
+    # the plan's generalised velocity and acceleration: the torso level, so no angular terms
+    qvel = np.concatenate([np.gradient(planned[:, :3], timestep, axis=0), np.zeros((len(times), 3)), rates], axis=1)
+    qacc = np.gradient(qvel, timestep, axis=0)
+    ideal = np.full_like(joints, np.nan)  # the plan's inverse dynamics on its stance foot (single support)
+    for k in range(0, len(times), 5):  # every 5 ms, held (both feet: the static halves)
+        on = [stance[k]] if stance[k] >= 0 else [0, 1]
+        feed_forward[k:k + 5] = np.mean([statics(planned[k], f) for f in on], axis=0)
+        if stance[k] >= 0:
+            ideal[k:k + 5] = statics(planned[k], stance[k], qvel[k], qacc[k])
+    if args.feed_forward == "inverse-dynamics":
+        feed_forward = np.where(np.isnan(ideal), feed_forward, ideal)
 
     model = registry.put_mjx_model(mj_model)
     kp = jnp.asarray([g[0] for g in LEG_GAINS] * 2 + [ARM_GAINS[0]] * 4)
@@ -253,7 +265,18 @@ def main():
     per_joint = {name: {"max_Nm": float(np.abs(applied[walking, a]).max()),
                         "p95_Nm": float(np.percentile(np.abs(applied[walking, a]), 95)),
                         "beyond_line_share": float(beyond[walking, a].mean())} for a, name in enumerate(names)}
+    # what perfect tracking of the plan would ask, single support between the fourth and the last steps
+    mid = (stance >= 0) & (times > STANDING + 3 * step_time) & (times < STANDING + (args.steps - 2) * step_time)
+    plan_speed = rates[mid]
+    ideal_limits = np.stack([np.asarray(x) for x in free_base.drive_torques(drives, jnp.asarray(ideal[mid]),
+                                                                              jnp.asarray(plan_speed))[1]])
+    ideal_line = np.where(ideal[mid] > 0, ideal_limits[1], ideal_limits[0])
+    plan_needs = {name: {"max_Nm": float(np.abs(ideal[mid, a]).max()),
+                         "p95_Nm": float(np.percentile(np.abs(ideal[mid, a]), 95)),
+                         "beyond_line_share": float((np.abs(ideal[mid, a]) > np.abs(ideal_line[:, a])).mean())}
+                  for a, name in enumerate(names)}
     row = {"mass_class": args.mass_class, "clipped_to_drive_line": clip, "pelvis_height_m": args.pelvis_height,
+           "feed_forward": args.feed_forward, "plan_inverse_dynamics_single_support": plan_needs,
            "steps_planned": args.steps, "steps_walked": walked, "fell": bool(len(fallen)),
            "speed_ratio": None if speed is None else speed / (step_length / step_time),
            "largest_yaw_rad": float(np.abs(yaw[:last]).max()), "simulated_s": float(times[n - 1]),
@@ -262,9 +285,11 @@ def main():
           f"{'fell' if row['fell'] else 'did not fall'}, speed ratio {row['speed_ratio']}, largest yaw "
           f"{row['largest_yaw_rad']:.2f} rad")
     for name in names[:12]:
-        j = per_joint[name]
+        j, ideal_j = per_joint[name], plan_needs[name]
         print(f"  {name:14s} max {j['max_Nm']:6.1f} N m, 95 % {j['p95_Nm']:5.1f} N m, beyond the line "
-              f"{100 * j['beyond_line_share']:4.1f} % of samples")
+              f"{100 * j['beyond_line_share']:4.1f} % of samples; the plan's inverse dynamics max "
+              f"{ideal_j['max_Nm']:5.1f}, 95 % {ideal_j['p95_Nm']:5.1f} N m, beyond "
+              f"{100 * ideal_j['beyond_line_share']:4.1f} %")
     settings = {"drive": f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD}", "step_length_m": step_length,
                 "step_time_s": step_time, "preview": {"dt_s": PREVIEW_DT, "horizon_s": PREVIEW_SECONDS}}
     save_results(args.name or f"humanoid_3d_probe_{args.mass_class}_{'clipped' if clip else 'unclipped'}",

@@ -121,6 +121,8 @@ def test_an_unknown_mass_class_or_part_is_named():
         free_base.single_support_torques(model, model.qpos0, 2)
     with pytest.raises(ValueError, match=r"\(23,\)"):
         free_base.single_support_torques(model, model.qpos0[:7], 0)
+    with pytest.raises(ValueError, match=r"qacc must have shape \(22,\)"):
+        free_base.single_support(model)(model.qpos0, 0, qacc=np.zeros(23))
 
 
 def test_standing_on_one_leg_loads_the_hip_roll_with_the_weight_beyond_it(robot):
@@ -149,3 +151,22 @@ def test_standing_on_one_leg_loads_the_hip_roll_with_the_weight_beyond_it(robot)
     assert abs(over[ankle]) < 1e-6 * lever and over[roll] == pytest.approx(lever, rel=1e-9)
     mirrored = free_base.single_support_torques(mj_model, mj_model.qpos0, 1)
     assert mirrored[layout.legs[1][1]] == pytest.approx(-lever, rel=1e-9)
+
+
+def test_a_whole_body_acceleration_loads_the_joints_as_tilted_gravity_would(robot):
+    """The one-foot inverse dynamics of a motion: every body accelerating with the free base alone (a,
+    joints still) needs the torques that holding still needs under gravity g - a (the equivalence
+    principle), here 1 m/s^2 forward and 2 m/s^2 sideways: the stance hip's roll torque changes by more
+    than 0.5 N m."""
+    mj_model, layout, _ = robot
+    import copy
+    pose = np.array(mj_model.qpos0)
+    moving = free_base.single_support(mj_model)
+    a = np.array([1.0, 2.0, 0.0])
+    qacc = np.zeros(mj_model.nv)
+    qacc[:3] = a
+    tilted = copy.deepcopy(mj_model)
+    tilted.opt.gravity[:] = np.asarray(mj_model.opt.gravity) - a
+    np.testing.assert_allclose(moving(pose, 0, qacc=qacc), free_base.single_support_torques(tilted, pose, 0),
+                               rtol=1e-9, atol=1e-9)
+    assert abs(moving(pose, 0, qacc=qacc)[layout.legs[0][1]] - moving(pose, 0)[layout.legs[0][1]]) > 0.5

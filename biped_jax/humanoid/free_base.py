@@ -126,22 +126,30 @@ def single_support_torques(mj_model: mujoco.MjModel, qpos: np.ndarray, stance: i
     return single_support(mj_model)(qpos, stance)
 
 
-def single_support(mj_model: mujoco.MjModel) -> Callable[[np.ndarray, int], np.ndarray]:
-    """:func:`single_support_torques` of ``mj_model`` as a function of (qpos, stance), the model's
-    contact-free copy and layout made once."""
+def single_support(mj_model: mujoco.MjModel) -> Callable[..., np.ndarray]:
+    """:func:`single_support_torques` of ``mj_model`` as a function of (qpos, stance, qvel=None,
+    qacc=None), the model's contact-free copy and layout made once. With ``qvel`` and ``qacc`` (nv,)
+    given, the inverse dynamics of that motion on the one foot (zero where not given): the torques a
+    planned motion needs where the stance foot's ground wrench alone moves the free base."""
     layout = FreeLayout.of(mj_model)
     mj_model = copy.deepcopy(mj_model)
     mj_model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # the ground acts through the wrench alone
     data = mujoco.MjData(mj_model)
 
-    def torques(qpos: np.ndarray, stance: int) -> np.ndarray:
+    def torques(qpos: np.ndarray, stance: int, qvel: np.ndarray | None = None,
+                qacc: np.ndarray | None = None) -> np.ndarray:
         if stance not in (0, 1):
             raise ValueError(f"stance must be 0 (foot l) or 1 (foot r), got {stance!r}")
         qpos = np.asarray(qpos, dtype=float)
         if qpos.shape != (mj_model.nq,):
             raise ValueError(f"qpos must have shape ({mj_model.nq},), got {qpos.shape}")
-        data.qpos[:], data.qvel[:], data.qacc[:] = qpos, 0.0, 0.0
-        mujoco.mj_inverse(mj_model, data)  # zero velocity and acceleration: the generalised force gravity needs
+        for name, value in (("qvel", qvel), ("qacc", qacc)):
+            if value is not None and np.shape(value) != (mj_model.nv,):
+                raise ValueError(f"{name} must have shape ({mj_model.nv},), got {np.shape(value)}")
+        data.qpos[:] = qpos
+        data.qvel[:] = 0.0 if qvel is None else qvel
+        data.qacc[:] = 0.0 if qacc is None else qacc
+        mujoco.mj_inverse(mj_model, data)  # the generalised force the motion (at rest: gravity) needs
         needed = data.qfrc_inverse.copy()
         foot = layout.feet[stance]
         point = data.xipos[foot].copy()
