@@ -2,8 +2,8 @@
 
 No display is needed: the OpenGL context is EGL (Mesa's software device where there is no GPU) or,
 failing that, OSMesa; ``MUJOCO_GL`` chooses one of them (or ``glfw``, which needs a display) where set.
-The camera follows the model's first body from the side (the sagittal plane: the gait's plane), so a
-walk stays in the picture.
+The camera follows the model's first body from its left and a little behind (:data:`CAMERA`), so a walk
+stays in the picture and both legs show.
 """
 
 from __future__ import annotations
@@ -20,8 +20,9 @@ from biped_jax.report import outputs
 
 #: Picture size (pixels) and frame rate (frames per second of simulated time) of :func:`write_gif`.
 WIDTH, HEIGHT, FPS = 480, 360, 30
-#: The side camera: distance (m), elevation and azimuth (degrees; 90 looks along +y at the x-z plane).
-CAMERA = (1.6, -12.0, 90.0)
+#: The camera: distance (m), elevation and azimuth (degrees; 90 looks across the walk from its left,
+#: at the sagittal plane; 130 from behind that, so that both legs show).
+CAMERA = (1.4, -15.0, 130.0)
 _BACKENDS = ("egl", "osmesa", "glfw")
 
 
@@ -57,7 +58,7 @@ def frame_indices(t: np.ndarray, fps: float) -> np.ndarray:
 def render_frames(mj_model: mujoco.MjModel, qpos: np.ndarray, width: int = WIDTH, height: int = HEIGHT,
                   camera=CAMERA) -> np.ndarray:
     """RGB pictures (F, height, width, 3) uint8 of ``mj_model`` at each row of ``qpos`` (F, nq), seen by a
-    camera that follows body 1 from the side (``camera`` = distance m, elevation and azimuth deg)."""
+    camera that follows body 1 (``camera`` = distance m, elevation and azimuth deg: :data:`CAMERA`)."""
     qpos = np.asarray(qpos, dtype=float)
     if qpos.ndim != 2 or qpos.shape[1] != mj_model.nq:
         raise ValueError(f"qpos must have shape (frames, {mj_model.nq}), got {qpos.shape}")
