@@ -274,16 +274,17 @@ def ratio_gradient(solver) -> Callable:
     return gradient
 
 
-#: Steps of :func:`gradient_check`'s central differences per variable: 0.01 in log N and in log k_t
-#: (1 %), 0.005 in the split's fractions and of the thigh in the knee drives' place (small: one-sided
-#: at the ends of the thigh, first order; 0.02 there left 1.3 % on the tests' grid).
-GRADIENT_CHECK_STEPS = (0.01,) * 8 + (0.005,) * 3
-#: :func:`gradient_check` differences again at this fraction of its steps and judges the gradient there.
-#: J* is smooth (C1) but its curvature jumps wherever an inequality of the gait starts or stops binding,
-#: and the co-design's optima sit at such places: there a central difference is off by about h times the
-#: jump, first order in h. Measured at the full study's best M4 design (2026-12-06): d J*/d log N of K2
-#: 0.89 % from its central difference at 0.01, 0.22 % at 0.0025 (a quarter, as first order predicts);
-#: every other variable within 0.04 % at 0.0025.
+#: Steps of :func:`gradient_check`'s differences per variable: 0.0025 in log N and in log k_t, 0.00125
+#: in the split's fractions and of the thigh in the knee drives' place. J* is smooth (C1) but its
+#: curvature jumps wherever an inequality of the gait starts or stops binding, and the co-design's optima
+#: sit near such places: there a difference is off by about the step times the jump, first order.
+#: Measured at the full study's best designs (2026-12-06, ``benchmarks/codesign_gradient_check.py``,
+#: variables on a bound judged from inside): with four times these steps M2 within 0.009 %, M4 within
+#: 0.11 % but K1's ratio 2.0 %; with these M2 0.003 %, M4 0.12 % (K1); the tests' design at 66:1 within
+#: 0.5 % at both.
+GRADIENT_CHECK_STEPS = (0.0025,) * 8 + (0.00125,) * 3
+#: :func:`gradient_check` differences again at this fraction of its steps and judges the gradient there;
+#: the given steps' differences are kept to show the convergence.
 GRADIENT_CHECK_REFINEMENT = 0.25
 #: The barrier parameter :func:`gradient_check`'s re-solves start from: near the converged one, so that
 #: a re-solve stays on its design's branch. From the co-design's 1e-3 the barrier first pushes the gait
@@ -304,7 +305,7 @@ GRADIENT_CHECK_KINK = 0.25
 
 def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, power_limit, step_length=0.2,
                    steps=GRADIENT_CHECK_STEPS, batch: int | None = None,
-                   refinement: float = GRADIENT_CHECK_REFINEMENT) -> list[dict]:
+                   refinement: float = GRADIENT_CHECK_REFINEMENT, bounds=None) -> list[dict]:
     """The envelope gradient of J* at each design (its converged solution) against central differences
     of optima re-solved at each variable +- its step (``steps``, one per :data:`DESIGN_VARIABLES`; the
     knee drives' place kept within [0, 1], so one-sided at its ends) and again at +- ``refinement``
@@ -325,11 +326,20 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
     ``max_relative_error_where_smooth`` over those of them without a kink (None if none); ``steps``
     (the finer) and under ``coarse`` the ``steps``, ``central_differences`` and ``relative_error`` at
     the given steps.
+
+    With ``bounds`` = (low, high) ((V,) each, :func:`design_bounds`) a variable sitting on a bound
+    (``at_bound``: +1 upper, -1 lower) is judged from inside only, where the co-design can move it: its
+    ``central_differences`` entry is then the second-order one-sided difference through the design's J*
+    and the re-solves one finer and one given step inward (J* beyond a bound is no design's: past 190:1
+    the gear steps toward the 4-stage data, and a central difference across the bound measures that
+    step), its ``coarse`` entry the first-order one over the given step.
     """
     steps = np.asarray(steps, dtype=float)
     size = len(DESIGN_VARIABLES)
     if steps.shape != (size,) or not np.all(steps > 0):
         raise ValueError(f"steps must be {size} positive numbers, got {steps!r}")
+    if bounds is not None and (len(bounds) != 2 or any(np.shape(b) != (size,) for b in bounds)):
+        raise ValueError(f"bounds must be (low, high) with {size} values each, got {bounds!r}")
     checks.number_in("refinement", refinement, 0.0, 1.0, "(a fraction of the steps)")
     count = len(designs)
     speeds, limits, lengths = (np.repeat(per_design(label, value, count), 4 * size) for label, value in
@@ -360,16 +370,20 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
     for k in range(count):
         mine = solved[4 * size * k:4 * size * (k + 1)]
         ok = np.array([all(s.status == nlp.CONVERGED for s in mine[i::size]) for i in range(size)])
-        (central, error), (coarse, coarse_error) = (
-            _relative_errors(gradient[k], [s.cost for s in mine[half:half + 2 * size]],
-                             points[k, half:half + 2 * size]) for half in (0, 2 * size))
+        costs = np.array([s.cost for s in mine])
+        central, coarse = (_central(costs[half:half + 2 * size], points[k, half:half + 2 * size])
+                           for half in (0, 2 * size))
+        at_bound = _at_bound(theta[k], bounds)
+        inward = _inward(solutions[k].cost, costs, fine, steps, at_bound)
+        central, coarse = np.where(at_bound != 0, inward[0], central), np.where(at_bound != 0, inward[1], coarse)
+        error, coarse_error = (_relative_error(gradient[k], c) for c in (central, coarse))
         floor = GRADIENT_CHECK_FLOOR * np.max(np.abs(central))
-        one_sided = _one_sided(solutions[k].cost, [s.cost for s in mine[:2 * size]], theta[k], points[k, :2 * size])
-        kink = kinks(one_sided, floor)
+        one_sided = _one_sided(solutions[k].cost, list(costs[:2 * size]), theta[k], points[k, :2 * size])
+        kink = kinks(one_sided, floor) & (at_bound == 0)  # at a bound J* is judged from inside only
         smooth = ok & ~kink
         results.append({"variables": list(DESIGN_VARIABLES), "envelope": gradient[k].tolist(),
                         "central_differences": central.tolist(), "one_sided_differences": one_sided.tolist(),
-                        "kink": kink.tolist(), "steps": fine.tolist(),
+                        "at_bound": at_bound.tolist(), "kink": kink.tolist(), "steps": fine.tolist(),
                         "coarse": {"steps": steps.tolist(), "central_differences": coarse.tolist(),
                                    "relative_error": coarse_error.tolist()},
                         "floor_of_the_largest": GRADIENT_CHECK_FLOOR, "mu_initial": GRADIENT_CHECK_MU,
@@ -379,15 +393,43 @@ def gradient_check(solver, designs: list[DriveDesign], solutions: list, speed, p
     return results
 
 
-def _relative_errors(gradient: np.ndarray, costs: list[float], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Central differences per variable from J* at ``points`` (2 V, V: + steps, then - steps) and the
-    relative error of ``gradient`` (V,) against them, floored at :data:`GRADIENT_CHECK_FLOOR` of the
-    largest |difference|."""
-    size = len(gradient)
+def _central(costs: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Central differences per variable (V,) from J* at ``points`` (2 V, V: + steps, then - steps)."""
+    size = points.shape[1]
     spans = points[np.arange(size), np.arange(size)] - points[size + np.arange(size), np.arange(size)]
-    central = np.array([(costs[i] - costs[size + i]) / spans[i] for i in range(size)])
-    floor = GRADIENT_CHECK_FLOOR * np.max(np.abs(central))
-    return central, np.abs(gradient - central) / np.maximum(np.abs(central), floor)
+    return (costs[:size] - costs[size:]) / spans
+
+
+def _relative_error(gradient: np.ndarray, differences: np.ndarray) -> np.ndarray:
+    """|gradient - differences| over |differences|, floored at :data:`GRADIENT_CHECK_FLOOR` of the largest."""
+    floor = GRADIENT_CHECK_FLOOR * np.max(np.abs(differences))
+    return np.abs(gradient - differences) / np.maximum(np.abs(differences), floor)
+
+
+def _at_bound(theta: np.ndarray, bounds) -> np.ndarray:
+    """Per variable +1 at its upper bound, -1 at its lower one, 0 inside (or without ``bounds``), (V,)."""
+    if bounds is None:
+        return np.zeros(len(theta), int)
+    low, high = (np.asarray(b, dtype=float) for b in bounds)
+    tight = 1e-9 * np.maximum(1.0, np.abs(theta))
+    return np.where(theta >= high - tight, 1, np.where(theta <= low + tight, -1, 0)) * (high > low)
+
+
+def _inward(cost: float, costs: np.ndarray, fine: np.ndarray, steps: np.ndarray, at_bound: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Derivatives from inside the bounds for the variables at a bound (``at_bound`` +1 upper, -1 lower):
+    the second-order one-sided difference through J* at the design and at the finer and the given steps
+    inward (Lagrange's three-point rule on 0, h, H with H = ``steps`` and h = ``fine``), and the
+    first-order one over the given step; from ``costs`` (4 V: finer +, -, given +, -). (V,) each."""
+    size = len(fine)
+    v = np.arange(size)
+    near = np.where(at_bound > 0, costs[size + v], costs[v])  # J* one finer step inside
+    far = np.where(at_bound > 0, costs[3 * size + v], costs[2 * size + v])  # one given step inside
+    h, big = fine, steps
+    side = np.where(at_bound > 0, -1.0, 1.0)  # samples at 0, s h, s H: forward from a lower bound, else back
+    second = side * (-(1 / h + 1 / big) * cost + big / (h * (big - h)) * near - h / (big * (big - h)) * far)
+    first = side * (far - cost) / big
+    return second, first
 
 
 def _one_sided(cost: float, costs: list[float], theta: np.ndarray, points: np.ndarray) -> np.ndarray:

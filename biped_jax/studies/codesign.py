@@ -374,7 +374,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     checks_made = codesign.gradient_check(
         solver, [path.designs[b] for _, b in checks_at], [path.solutions[b] for _, b in checks_at],
         [problems[i].speed for i, _ in checks_at], [problems[i].power_limit for i, _ in checks_at],
-        batch=BATCH) if checks_at else []
+        batch=BATCH, bounds=(low, high)) if checks_at else []
     for (i, _), check in zip(checks_at, checks_made):
         per_problem[problems[i].name]["gradient_check"] = check
     errors = [c["max_relative_error"] for c in checks_made if c["max_relative_error"] is not None]
