@@ -37,13 +37,11 @@ def main():
     from biped_jax.studies import codesign as study
 
     result = json.loads((args.study / "codesign.json").read_text())["co_optimisation"]
-    settings = gait_problem.GaitSettings(dynamics="chain")
-    settings = dataclasses.replace(settings, segments=settings.spans, drive_limits=True)  # the study's
+    settings = study.study_settings(gait_problem.GaitSettings(dynamics="chain"))  # the command's default
     solver = GaitSolver(settings, study.IP_WARM_OPTIONS).using(
         dataclasses.replace(study.DESIGN_OPTIONS, lanes=study.design_lanes()))
     catalogue = drive_model.load_catalogue()
-    low, high = codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue),
-                                       drive_offset_bounds=study.DRIVE_OFFSET_BOUNDS)
+    low, high = study.study_bounds(catalogue)
     problems = [p for p in study.DESIGN_PROBLEMS if result["per_problem"].get(p.name, {}).get("best") is not None]
     x_start = study.reference_gait(solver, print)
     papers = [codesign.catalogue_design(mass_class=p.mass_class, catalogue=catalogue) for p in problems]

@@ -201,6 +201,21 @@ CMAES_SIGMA = 0.2
 _designs_at = jax.jit(jax.vmap(codesign.with_variables, in_axes=(None, 0)))
 
 
+def study_settings(settings: gait_problem.GaitSettings) -> gait_problem.GaitSettings:
+    """The co-design's gait space from ``settings``: single-shot settings shot in a segment per knot span,
+    the drives' gear limits held (a catalogue drive cannot do more)."""
+    if settings.segments == 1:
+        settings = dataclasses.replace(settings, segments=settings.spans)
+    return dataclasses.replace(settings, drive_limits=True)
+
+
+def study_bounds(catalogue: drive_model.Catalogue) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of study (d)'s design variables: :func:`~biped_jax.codesign.design_bounds` with the
+    catalogue's windings and the knee drives anywhere from the knee to the hip."""
+    return codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue),
+                                  drive_offset_bounds=DRIVE_OFFSET_BOUNDS)
+
+
 def design_lanes(lanes: int | None = None) -> int | None:
     """Study (d)'s lanes: ``lanes`` where given, else :data:`CPU_LANES` on a CPU and the whole batch
     (None) on an accelerator."""
@@ -311,8 +326,7 @@ def co_optimisation(solver: GaitSolver, x_start, say, iterations: int, starts: i
     batch solves. Every batch with :data:`DESIGN_OPTIONS` in :func:`design_lanes` (``lanes``)."""
     catalogue = drive_model.load_catalogue()
     solver = solver.using(dataclasses.replace(DESIGN_OPTIONS, lanes=design_lanes(lanes)))
-    low, high = codesign.design_bounds(torque_constant_bounds=codesign.winding_range(catalogue),
-                                       drive_offset_bounds=DRIVE_OFFSET_BOUNDS)
+    low, high = study_bounds(catalogue)
     papers = [codesign.catalogue_design(mass_class=p.mass_class, catalogue=catalogue) for p in problems]
     say(f"(d) the paper's design of {', '.join(p.name for p in problems)}")
     padded = papers + [papers[0]] * (BATCH - len(papers))
@@ -435,9 +449,7 @@ def run_codesign(out: Path, settings: gait_problem.GaitSettings = gait_problem.G
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     options = IP_WARM_OPTIONS
-    if settings.segments == 1:
-        settings = dataclasses.replace(settings, segments=settings.spans)
-    settings = dataclasses.replace(settings, drive_limits=True)  # a catalogue drive cannot do more
+    settings = study_settings(settings)
     solver = GaitSolver(settings, options)
     results = {"settings": {"spans": settings.spans, "substeps": settings.substeps, "steps": settings.steps,
                             "degree": settings.degree, "batch": BATCH, "torque_bound_Nm": settings.torque_bound,
