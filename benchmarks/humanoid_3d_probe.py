@@ -1,13 +1,13 @@
 """How far a textbook 3D walking pattern gets on the free-base humanoid, with the drives' line and without.
 
-Not the project's walking controller (there is none in the package yet): a probe of what the hardware
-asks of one. The pattern is Kajita's ZMP preview control (cart-table model at the standing centre of
-mass height, Q_e = 1, R = 1e-6, 1.6 s preview) over a fixed footstep plan at the optimal M2 gait's step
-length and time (0.2 m, 0.360 s: 0.555 m/s), feet 0.13 m apart; the joints follow an analytic leg
-inverse kinematics (torso level, feet flat, the pelvis at ``--pelvis-height``) by PD (300 N m/rad on the
-legs), plus each sample's static torques standing on its stance foot
-(:func:`biped_jax.humanoid.free_base.single_support_torques`, halved over both feet while both stand)
-and a torso roll/pitch/yaw feedback through the stance hip. The humanoid is
+Not the project's walking controller (that is :mod:`biped_jax.humanoid.walker`, run by ``biped-jax
+humanoid``): a probe of what the hardware asks of a textbook pattern. The pattern is Kajita's ZMP preview
+control (cart-table model at the standing centre of mass height, Q_e = 1, R = 1e-6, 1.6 s preview) over a
+fixed footstep plan at the optimal M2 gait's step length and time (0.2 m, 0.360 s: 0.555 m/s), feet 0.13
+m apart; the joints follow an analytic leg inverse kinematics (torso level, feet flat, the pelvis at
+``--pelvis-height``) by PD (300 N m/rad on the legs), plus each sample's static torques standing on its
+stance foot (:func:`biped_jax.humanoid.free_base.single_support_torques`, halved over both feet while
+both stand) and a torso roll/pitch/yaw feedback through the stance hip. The humanoid is
 :func:`~biped_jax.humanoid.free_base.free_base_humanoid` (the recommended drive's reflected inertia at
 every joint) in MJX at 1 ms; with the line (default) every torque is clipped to it
 (:func:`~biped_jax.humanoid.free_base.drive_torques`), with ``--unclipped`` not.

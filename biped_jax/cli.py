@@ -224,6 +224,13 @@ def _parser() -> argparse.ArgumentParser:
                         help="steps to walk, 1-1000 (default 10)")
     replay.add_argument("--gaits", type=_input_folder, default=None,
                         help="folder with results.json from `biped-jax reproduce` (default: solve the model here)")
+    replay.add_argument("--walk-models", nargs="*", default=["M2", "M4"], choices=("M1", "M2", "M3", "M4"),
+                        help="models walked in 3D on the free-base humanoid with the drives in the loop "
+                             "(default M2 M4; none: the sagittal replay alone)")
+    replay.add_argument("--walk-steps", type=_integer("walk-steps", 1, 1000), default=20,
+                        help="steps of each 3D walk after its speed ramp, 1-1000 (default 20)")
+    replay.add_argument("--push-batch", type=_integer("push-batch", 0, 4096), default=64,
+                        help="runs in each push trial of the 3D walks, one vmapped program (default 64; 0: none)")
     _space_arguments(replay, " when solving here")
     design = subcommands.add_parser("codesign", help="co-design studies: gear ratios, windings and mass split "
                                  "optimised with the gait, windings and masses compared (figures, JSON; hours on "

@@ -128,13 +128,15 @@ def donald_walk(out: Path, steps: int, faster: bool = False, resume: bool = Fals
     return report
 
 
-def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | None) -> dict:
-    """The optimal gait replayed on the humanoid; see :mod:`biped_jax.studies.humanoid`."""
+def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | None,
+                  walk_models: tuple[str, ...] = ("M2", "M4"), walk_steps: int = 20, push_batch: int = 64) -> dict:
+    """The optimal gait replayed on the humanoid, and the 3D walks; see :mod:`biped_jax.studies.humanoid`."""
     from biped_jax.studies import humanoid as humanoid_study
 
     started = time.perf_counter()
-    with live_progress(("humanoid: t =", f"{model}: outer")) as progress:
-        report = humanoid_study.run_humanoid(out, model, steps, settings, gaits, progress)
+    with live_progress(("humanoid: t =", f"{model}: outer", "3D walk")) as progress:
+        report = humanoid_study.run_humanoid(out, model, steps, settings, gaits, progress, walk_models, walk_steps,
+                                             push_batch)
     verdict = "fell" if report["fell"] else "did not fall"
     errors = report["tracking_error_rad"]
     console.print(f"humanoid ({report['mass_class']}) replaying {model}: {report['steps']} touchdowns, "
@@ -149,9 +151,33 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
         console.print(f"touchdowns isolated from the controller against the impact map (medians): impulse error "
                       f"{impulse:.0%}, velocity-jump error {jump:.0%}; in the replay the landing foot rebounded "
                       f"at {rebounds} of {len(touchdowns)}")
+    for name, walk in report.get("models", {}).items():
+        console.print(_walk_3d_line(name, walk))
     console.print(f"wrote {out}/humanoid.json, humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, "
-                  f"humanoid_replay.npz in {time.perf_counter() - started:.0f} s")
+                  f"humanoid_replay.npz, humanoid_walk3d_*.npz in {time.perf_counter() - started:.0f} s")
     return report
+
+
+def _walk_3d_line(name: str, walk: dict) -> str:
+    """One model's 3D walk in a line: steps, fall, speed and step length against the gait's, the drives."""
+    line = f"3D walk of {name} ({walk['mass_class']}): {walk['steps_after_ramp']} steps after the ramp, " + (
+        "fell" if walk["fell"] else "did not fall")
+    if "speed_ratio" in walk:
+        line += (f"; {walk['speed_mps']:.3f} m/s ({walk['speed_ratio']:.0%} of the gait's), step "
+                 f"{walk['step_length_m']:.3f} m ({walk['step_length_ratio']:.0%}), {walk['rebounds']} rebounds, "
+                 f"slip {1e3 * walk['slip_max_m']:.1f} mm, torque up to {walk['max_drive_torque_ratio']:.2f}x the "
+                 f"drive line, cost of transport {walk['cost_of_transport']:.3f} (optimal step "
+                 f"{walk['gait_cost_of_transport']:.3f})")
+    if "push_success_rate" in walk:
+        half = walk["push_half_fall_impulse_Ns"]
+        line += (f"; pushed ({humanoid_push_impulse()} N s each way): {walk['push_success_rate']:.0%} stayed up, "
+                 f"half fall at {'-' if half is None else f'{half:.2f}'} N s")
+    return line
+
+
+def humanoid_push_impulse() -> float:
+    from biped_jax.studies import humanoid as humanoid_study
+    return humanoid_study.PUSH_IMPULSE
 
 
 def codesign(out: Path, settings, iterations: int, resume: bool = False, starts: int = 64,
@@ -408,7 +434,8 @@ def run_humanoid(args) -> int:
     configure_jax()
     settings = _settings(args)
     try:
-        humanoid_walk(args.out, args.model, args.steps, settings, args.gaits)
+        humanoid_walk(args.out, args.model, args.steps, settings, args.gaits, tuple(args.walk_models),
+                      args.walk_steps, args.push_batch)
     except (ValueError, FileNotFoundError) as error:
         args.parser.error(str(error))
     return 0

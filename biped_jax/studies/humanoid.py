@@ -23,6 +23,14 @@ from biped_jax.studies import paper as study
 PAPER_DRIVE = ("RE25-42V", 66.22)
 
 
+#: The robustness trial (:func:`push_trial`): runs per batch, each push's impulse in the nominal batch
+#: (N s; 1.5 N s changes the 12 kg robot's speed by 0.12 m/s), the sweep's largest impulse, how long each
+#: push lasts (s), and the walk's length after the last push (s).
+PUSH_BATCH, PUSH_IMPULSE, PUSH_SWEEP, PUSH_DURATION, PUSH_RECOVERY = 64, 1.5, 6.0, 0.1, 1.5
+#: The 3D walk's models: the paper's two mass classes at the optimal gait's speed.
+WALK_MODELS = ("M2", "M4")
+
+
 def paper_model(name: str) -> tuple[str, gait_problem.GaitModel]:
     """(mass class, problem) of one of the paper's models M1-M4."""
     rows = {r.name: r for r in study.PAPER_MODELS}
@@ -123,11 +131,22 @@ def free_base_qpos(qpos: np.ndarray) -> np.ndarray:
 
 def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
                  settings: gait_problem.GaitSettings = gait_problem.GaitSettings(),
-                 gaits: Path | None = None, progress: Callable[[str], None] | None = None) -> dict:
-    """Replays model ``name``'s optimal step for ``steps`` steps; writes humanoid.json, humanoid_walk.png,
-    humanoid_tracking.png, humanoid_torque_speed.png, humanoid_replay.npz and the animation
-    humanoid_walk.gif (:func:`biped_jax.report.animation.write_gif`; a warning instead where this machine
-    has no OpenGL for headless rendering)."""
+                 gaits: Path | None = None, progress: Callable[[str], None] | None = None,
+                 walk_models: tuple[str, ...] = WALK_MODELS, walk_steps: int = 20,
+                 push_batch: int = PUSH_BATCH) -> dict:
+    """Replays model ``name``'s optimal step for ``steps`` steps on the planarised humanoid, then walks each
+    of ``walk_models`` in 3D on the free-base humanoid (``walk_steps`` steps after the speed ramp, push
+    trials of ``push_batch`` runs; 0: none). Writes humanoid.json (the 3D walks under ``models``),
+    humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, humanoid_replay.npz,
+    humanoid_walk3d_<model>.npz and the animations humanoid_walk.gif and humanoid_walk3d_<model>.gif
+    (:func:`biped_jax.report.animation.write_gif`; a warning instead where this machine has no OpenGL for
+    headless rendering)."""
+    for model_name in walk_models:
+        paper_model(model_name)  # an unknown name fails here, before any compilation
+    if int(walk_steps) < 1:
+        raise ValueError(f"walk_steps must be at least 1, got {walk_steps}")
+    if int(push_batch) < 0:
+        raise ValueError(f"push_batch must be 0 or more, got {push_batch}")
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection as drive_selection
     from biped_jax.dynamics import mjx_biped
@@ -160,10 +179,122 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
                                          out / "humanoid_torque_speed.png", windings=(winding,), window=0.0)
     replay_qpos = free_base_qpos(run.qpos)
     outputs.save_npz(out / "humanoid_replay.npz", compressed=True, t=run.t, qpos=replay_qpos)
-    say("rendering the walk")
-    try:
-        animation.write_gif(out / "humanoid_walk.gif", robots.load_mj_model(f"humanoid16_{mass_class}"), run.t,
-                            replay_qpos)
-    except RuntimeError as error:  # no OpenGL here: the walk's figures and replay file are still written
-        say(f"warning: no animation of the walk ({error})")
+    animations = [(out / "humanoid_walk.gif", robots.load_mj_model(f"humanoid16_{mass_class}"), run.t, replay_qpos)]
+    report["models"] = {}
+    for model_name in walk_models:
+        if model_name == name:
+            walked = trajectory
+        else:
+            x_other, settings_other, _ = solved_gait(model_name, settings, gaits, say)
+            other_class, other_model = paper_model(model_name)
+            walked = jax.jit(lambda x_, m, b=mjx_biped.load_planar_biped(other_class), s=settings_other:
+                             gait_problem.simulate(x_, m, b, s))(jnp.asarray(x_other), other_model)
+        entry, record = walk_3d(model_name, walked, walk_steps, push_batch, say)
+        report["models"][model_name] = entry
+        outputs.write_json(out / "humanoid.json", report)
+        outputs.save_npz(out / f"humanoid_walk3d_{model_name}.npz", compressed=True, t=record.t, qpos=record.qpos)
+        from biped_jax.humanoid import walk3d
+        animations.append((out / f"humanoid_walk3d_{model_name}.gif", walk3d.program(entry["mass_class"]).mj_model,
+                           record.t, record.qpos))
+    say("rendering the walks")
+    for path, mj_model_, t, qpos in animations:
+        try:
+            animation.write_gif(path, mj_model_, t, qpos)
+        except RuntimeError as error:  # no OpenGL here: the walk's figures and replay file are still written
+            say(f"warning: no animation of the walk ({error})")
+            break
     return report
+
+
+
+def gait_cost_of_transport(trajectory, mass: float, step_length: float) -> float:
+    """Positive joint work of the optimal step over weight x step length (the 3D walk's measure)."""
+    power = np.maximum(np.asarray(trajectory.u) * np.asarray(trajectory.qd)[:, 1:], 0.0).sum(axis=1)
+    return float(np.asarray(trajectory.weights) @ power) / (mass * 9.81 * step_length)
+
+
+def walk_params(name: str):
+    """The controller's parameters for model ``name``: the tuned set at the model's speed and step time."""
+    from biped_jax.humanoid import walker
+    _, model = paper_model(name)
+    speed, step_length = float(model.speed), float(model.step_length)
+    return dataclasses.replace(walker.TUNED, speed=speed, step_time=step_length / speed)
+
+
+def push_trial(params, mass_class: str, batch: int, impulse: float | None, seed: int = 0) -> dict:
+    """``batch`` walks from disturbed starts (:func:`biped_jax.humanoid.walk3d.disturbed_starts`), each
+    pushed once sagittally (after the ramp and four steps) and once sideways (four steps later), random
+    signs, in one vmapped program. ``impulse`` (N s) for every run, or None: run b's impulse
+    ``PUSH_SWEEP (b + 0.5) / batch`` (the sweep). Returns the runs' impulses, who stayed up, the success
+    rate and, for the sweep, the impulse at which half the runs fall (a logistic fit; None where fewer
+    than one in ten or more than nine in ten fell)."""
+    from biped_jax.humanoid import walk3d
+    prog = walk3d.program(mass_class)
+    qpos, qvel = walk3d.disturbed_starts(prog, params, batch, seed)
+    rng = np.random.default_rng(seed + 1)
+    level = (np.full(batch, impulse) if impulse is not None
+             else PUSH_SWEEP * (np.arange(batch) + 0.5) / batch)
+    signs = rng.choice([-1.0, 1.0], size=(batch, 2))
+    sagittal_at = float(params.ramp) + 4 * float(params.step_time)
+    lateral_at = sagittal_at + 4 * float(params.step_time)
+    runs = [walk3d.pushes(forward * i, sideways * i, sagittal_at, lateral_at, PUSH_DURATION)
+            for i, (forward, sideways) in zip(level, signs)]
+    stacked = jax.tree.map(lambda *a: jnp.stack(a), *runs)
+    up, _ = walk3d.survive(params, stacked, qpos, qvel, lateral_at + PUSH_RECOVERY, mass_class)
+    record = {"batch": batch, "impulses_Ns": level.tolist(), "signs": signs.tolist(), "stayed_up": up.tolist(),
+              "success_rate": float(up.mean()), "sagittal_at_s": sagittal_at, "lateral_at_s": lateral_at,
+              "duration_s": PUSH_DURATION, "walk_s": lateral_at + PUSH_RECOVERY}
+    if impulse is None:
+        record["half_fall_impulse_Ns"] = half_fall_impulse(level, up)
+    return record
+
+
+def half_fall_impulse(impulse: np.ndarray, up: np.ndarray) -> float | None:
+    """The impulse (N s) at which a logistic fit of falling against impulse crosses one half; None where
+    fewer than 10 % or more than 90 % of the runs fell (no crossing within the sweep to fit)."""
+    import scipy.optimize
+    fell = ~np.asarray(up, dtype=bool)
+    if not 0.1 <= fell.mean() <= 0.9:
+        return None
+    x = np.asarray(impulse, dtype=float)
+
+    def loss(theta):
+        z = theta[0] + theta[1] * x
+        return float(np.sum(np.logaddexp(0.0, z) - fell * z))
+
+    fit = scipy.optimize.minimize(loss, np.array([-1.0, 1.0]), method="Nelder-Mead")
+    a, b = fit.x
+    return float(-a / b) if b > 0 else None
+
+
+def walk_3d(name: str, trajectory, steps: int, batch: int, progress: Callable[[str], None]) -> tuple[dict, object]:
+    """Model ``name`` walking in 3D (:mod:`biped_jax.humanoid.walk3d`): ``steps`` steps after the speed ramp,
+    the walk's figures, the push trials (nominal impulse and sweep, ``batch`` runs each), the cost of
+    transport against the optimal step's (``trajectory``). Returns (the record for humanoid.json, the walk)."""
+    from biped_jax.humanoid import walk3d
+    mass_class, model = paper_model(name)
+    params = walk_params(name)
+    speed, step_length = float(model.speed), float(model.step_length)
+    progress(f"compiling the 3D walk ({mass_class}) and walking {name}")
+    record = walk3d.walk(params, mass_class, steps, progress=progress)
+    figures = walk3d.measures(record, mass_class, params, speed, step_length)
+    prog = walk3d.program(mass_class)
+    gait_cot = gait_cost_of_transport(trajectory, prog.layout.mass, step_length)
+    entry = {"free_base": True, "mass_class": mass_class, "gait_speed_mps": speed, "gait_step_length_m": step_length,
+             "drive": f"{humanoid_drive()} at every joint", "controller": dataclasses.asdict(params),
+             "steps_after_ramp": max(0, figures["steps"] - int(np.ceil(params.ramp / params.step_time))),
+             **figures, "gait_cost_of_transport": gait_cot}
+    if entry.get("cost_of_transport") is not None:
+        entry["cost_of_transport_ratio"] = entry["cost_of_transport"] / gait_cot
+    if batch:
+        progress(f"{name}: {batch} pushed walks at {PUSH_IMPULSE} N s, then {batch} over 0-{PUSH_SWEEP} N s")
+        entry["push_nominal"] = push_trial(params, mass_class, batch, PUSH_IMPULSE)
+        entry["push_sweep"] = push_trial(params, mass_class, batch, None, seed=1)
+        entry["push_success_rate"] = entry["push_nominal"]["success_rate"]
+        entry["push_half_fall_impulse_Ns"] = entry["push_sweep"]["half_fall_impulse_Ns"]
+    return entry, record
+
+
+def humanoid_drive() -> str:
+    from biped_jax.humanoid import free_base
+    return f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD}"

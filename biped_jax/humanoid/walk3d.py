@@ -1,0 +1,433 @@
+"""The free-base humanoid walking in 3D under contact in MJX: the controller of
+:mod:`biped_jax.humanoid.walker`, every torque clipped to the drive's line, in compiled chunks of physics
+steps; pushes on the torso; a batch of disturbed walks as one vmapped program; the walk's measures.
+
+Coordinates as in :mod:`biped_jax.humanoid.free_base`. A walk starts at rest on both feet with the knees
+at the controller's stance bend and the pelvis moving sideways toward the first stance foot (l) at
+``WalkerParams.side_speed``; the desired speed ramps up over ``WalkerParams.ramp``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from biped_jax.drives import model as drive_model
+from biped_jax.humanoid import free_base, walker
+from biped_jax.robots import registry
+
+mjx = registry.import_mjx()
+
+#: Physics steps per compiled call: one program walks any duration.
+CHUNK = 500
+#: The constraint solver's iteration caps in the walk (MuJoCo's defaults are 100 and 50): MJX runs a
+#: batch's solver loop until its slowest member converges, and the walk's few foot contacts converge in
+#: a handful of Newton iterations (checked against the defaults by the tests).
+SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS = 8, 8
+#: The robot has fallen when its pelvis drops below this height (m) or the torso tilts beyond
+#: :data:`FALL_TILT` (rad) in roll or pitch.
+FALL_HEIGHT, FALL_TILT = 0.18, 0.6
+#: A foot is in contact while the ground pushes on it with more than this, N.
+CONTACT_FORCE = 1.0
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Push:
+    """Constant forces on the torso's centre of mass, force p over [start p, start p + duration p): start,
+    duration (P,) in s, force (P, 3) in N, world frame; push p's impulse is force p x duration p (N s).
+    Batched: a leading batch axis on every field."""
+
+    start: jax.Array
+    duration: jax.Array
+    force: jax.Array
+
+    @property
+    def impulse(self) -> jax.Array:
+        """(..., P, 3), N s."""
+        return self.force * self.duration[..., None]
+
+    def at(self, time) -> jax.Array:
+        """The total force at ``time`` (s), (3,), N."""
+        on = (time >= self.start) & (time < self.start + self.duration)
+        return jnp.sum(jnp.where(on[:, None], self.force, 0.0), axis=0)
+
+
+#: No push: two pushes of zero force, the shape of :func:`pushes` (each number of pushes is its own program).
+NO_PUSH = Push(start=jnp.zeros(2), duration=jnp.zeros(2), force=jnp.zeros((2, 3)))
+
+
+def pushes(sagittal: float, lateral: float, sagittal_at: float, lateral_at: float, duration: float = 0.1) -> Push:
+    """A sagittal push (impulse ``sagittal`` N s along +x; negative: backward) at ``sagittal_at`` s and a
+    lateral one (``lateral`` N s along +y) at ``lateral_at`` s, each lasting ``duration`` s."""
+    for name, value in (("duration", duration), ("sagittal_at", sagittal_at), ("lateral_at", lateral_at)):
+        if not (np.isfinite(value) and value >= (1e-3 if name == "duration" else 0.0)):
+            raise ValueError(f"{name} must be finite and {'at least 1 ms' if name == 'duration' else 'non-negative'}, "
+                             f"got {value!r} s")
+    for name, value in (("sagittal", sagittal), ("lateral", lateral)):
+        if not np.isfinite(value):
+            raise ValueError(f"the {name} impulse must be finite, got {value!r} N s")
+    force = np.array([[sagittal / duration, 0.0, 0.0], [0.0, lateral / duration, 0.0]])
+    return Push(start=jnp.asarray([sagittal_at, lateral_at]), duration=jnp.full(2, duration), force=jnp.asarray(force))
+
+
+def walk_model(mass_class: str = "12kg") -> mujoco.MjModel:
+    """The free-base humanoid of the walk (:func:`free_base.free_base_humanoid`, the recommended drive's
+    reflected inertia at every joint) with the walk's solver caps."""
+    model = free_base.free_base_humanoid(mass_class)
+    model.opt.iterations, model.opt.ls_iterations = SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS
+    return model
+
+
+@dataclasses.dataclass(frozen=True)
+class Program:
+    """The compiled walk of one mass class: the MuJoCo C model, layout, legs' geometry, drives, the MJX
+    model, and the physics step ``step(params, push, (data, memory)) -> ((data, memory), sample)``."""
+
+    mj_model: mujoco.MjModel
+    layout: free_base.FreeLayout
+    legs: walker.Legs
+    drives: drive_model.JointDrives
+    model: object
+    step: Callable
+    contact_rows: np.ndarray
+
+
+@functools.lru_cache(maxsize=None)
+def program(mass_class: str = "12kg") -> Program:
+    """The walk's pieces for ``mass_class`` (made once)."""
+    mj_model = walk_model(mass_class)
+    layout = free_base.FreeLayout.of(mj_model)
+    legs = walker.Legs.of(mj_model)
+    drives = free_base.walk_drives()
+    model = registry.put_mjx_model(mj_model)
+    joint_speed = jnp.asarray(layout.qvel)
+    timestep = float(mj_model.opt.timestep)
+
+    def step(params, push, carry):
+        data, memory = carry
+        command = walker.control(params, layout, legs, data, memory)
+        applied, _ = free_base.drive_torques(drives, command, data.qvel[joint_speed])
+        force = jnp.zeros((mj_model.nbody, 6)).at[layout.torso, :3].set(push.at(data.time))
+        data = mjx.step(model, data.replace(ctrl=applied, xfrc_applied=force))
+        memory = walker.remember(params, layout, legs, data, memory, timestep)
+        return (data, memory), (command, applied)
+
+    # MJX keeps a fixed set of contact slots (geom pairs) and rows per slot: each foot's rows, found once
+    slots = _forward(model, mjx.make_data(model))._impl
+    geoms, first, size = (np.asarray(a) for a in (slots.contact.geom, slots.contact.efc_address, slots.contact.dim))
+    rows = np.zeros((2, int(slots.efc_J.shape[0])))
+    for pair, start, dim in zip(geoms, first, size):
+        for foot, geom in enumerate(legs.foot_geoms):
+            if geom in pair:
+                rows[foot, start:start + 2 * (dim - 1)] = 1.0  # a pyramidal friction cone's rows
+    return Program(mj_model, layout, legs, drives, model, step, rows)
+
+
+def start_state(prog: Program, params: walker.WalkerParams) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, qvel) of the start: standing on both flat feet, knees at ``params.stance_knee``, the pelvis
+    moving toward foot l at ``params.side_speed`` (floats, not arrays)."""
+    mj_model, layout = prog.mj_model, prog.layout
+    knee = float(params.stance_knee)
+    qpos = np.array(mj_model.qpos0)
+    for leg in layout.legs:
+        for joint, angle in zip(leg[2:5], (-knee / 2, knee, -knee / 2)):  # hip, knee, ankle: feet flat
+            qpos[layout.qpos[joint]] = angle
+    data = mujoco.MjData(mj_model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(mj_model, data)
+    sole = min(data.geom_xpos[g][2] - prog.legs.half_foot[2] for g in prog.legs.foot_geoms)
+    qpos[2] -= sole
+    qvel = np.zeros(mj_model.nv)
+    qvel[1] = float(params.side_speed)
+    return qpos, qvel
+
+
+def initial(prog: Program, params: walker.WalkerParams, qpos: np.ndarray | None = None,
+            qvel: np.ndarray | None = None):
+    """(MJX data, walker memory) at the start (or at ``qpos``, ``qvel``), foot l standing."""
+    default_q, default_v = start_state(prog, params)
+    qpos = default_q if qpos is None else qpos
+    qvel = default_v if qvel is None else qvel
+    data = mujoco.MjData(prog.mj_model)
+    data.qpos[:], data.qvel[:] = qpos, qvel
+    mujoco.mj_kinematics(prog.mj_model, data)
+    feet = data.xpos[list(prog.layout.feet)]
+    memory = walker.WalkerMemory(stance=jnp.asarray(0), time=jnp.asarray(0.0), lift=jnp.asarray(feet[1] - qpos[:3]),
+                                 foot=jnp.asarray(feet[0]), steps=jnp.asarray(0),
+                                 knee=jnp.asarray(qpos[prog.layout.qpos[prog.layout.legs[0][3]]]))
+    mjx_data = _forward(prog.model, mjx.make_data(prog.model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
+    return jax.device_put((mjx_data, memory))
+
+
+_forward = jax.jit(lambda model, data: mjx.forward(model, data))
+
+
+def _arrays(tree):
+    """Every leaf as a float64 array of fixed (not weak) type: one compiled program whatever Python or
+    numpy numbers the caller passed."""
+    return jax.tree.map(lambda leaf: jnp.asarray(np.asarray(leaf, dtype=float)), tree)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Walk:
+    """Samples of every physics step (leading dimension N), SI units.
+
+    Attributes:
+      t: time after the step, (N,), s. qpos, qvel: state after the step, (N, 23), (N, 22).
+      command: torques the controller asked for during the step, (N, 16), N m; applied: what the drives
+      gave (the command clipped to their line at the joint's speed), (N, 16), N m.
+      stance: the supporting leg during the step (0 = l, 1 = r), (N,). feet: foot body origins after the
+      step (l, r), (N, 2, 3), m. foot_force: the ground's force on each foot during the step, (N, 2, 3),
+      N (world frame).
+    """
+
+    t: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    command: np.ndarray
+    applied: np.ndarray
+    stance: np.ndarray
+    feet: np.ndarray
+    foot_force: np.ndarray
+
+
+def ground_forces(prog: Program, data) -> jax.Array:
+    """The ground's force on each foot (l, r) during the step that ended at MJX ``data``, (2, 3), N, world
+    frame: each foot's share of the constraint force's free-base rows (J^T f of its contacts' rows), so the
+    two add up to what changes the momentum. (MJX's ``rne_postconstraint`` differs from that by up to 1.6 %
+    of the force under these box contacts, measured.)"""
+    rows = jnp.asarray(prog.contact_rows)  # (2, nefc): which constraint rows are each foot's contacts
+    return rows @ (data._impl.efc_J[:, :3] * data._impl.efc_force[:, None])
+
+
+@functools.lru_cache(maxsize=None)
+def _recorder(mass_class: str):
+    """One compiled call that advances :data:`CHUNK` physics steps and samples each (cached)."""
+    prog = program(mass_class)
+    feet = jnp.asarray(prog.layout.feet)
+
+    def sampled(params, push, carry, _):
+        memory = carry[1]
+        carry, (command, applied) = prog.step(params, push, carry)
+        data = carry[0]
+        force = ground_forces(prog, data)
+        return carry, Walk(t=data.time, qpos=data.qpos, qvel=data.qvel, command=command, applied=applied,
+                           stance=memory.stance, feet=data.xpos[feet], foot_force=force)
+
+    @jax.jit
+    def advance(params, push, data, memory):
+        return jax.lax.scan(functools.partial(sampled, params, push), (data, memory), None, length=CHUNK)
+
+    return advance
+
+
+def fallen(qpos: np.ndarray) -> np.ndarray:
+    """Per sample (..., 23): the pelvis below :data:`FALL_HEIGHT`, the torso tilted beyond :data:`FALL_TILT`
+    in roll or pitch, or a diverged state."""
+    roll, pitch = tilt(qpos)
+    return ~np.all(np.isfinite(qpos), axis=-1) | (qpos[..., 2] < FALL_HEIGHT) | (np.abs(roll) > FALL_TILT) | (
+        np.abs(pitch) > FALL_TILT)
+
+
+def tilt(qpos):
+    """(roll, pitch) of the torso from the free joint's quaternion in qpos (..., 23), rad (the Z-Y-X
+    angles of :func:`walker.torso_angles`); numpy or jax."""
+    xp = jnp if isinstance(qpos, jax.Array) else np
+    w, x, y, z = (qpos[..., 3 + i] for i in range(4))
+    roll = xp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = xp.arcsin(xp.clip(2 * (w * y - z * x), -1.0, 1.0))
+    return roll, pitch
+
+
+def walk(params: walker.WalkerParams, mass_class: str = "12kg", steps: int = 20, push: Push = NO_PUSH,
+         settle: float = 0.5, progress: Callable[[str], None] | None = None, seconds: float | None = None) -> Walk:
+    """Walks until ``steps`` touchdowns after the speed ramp (and ``settle`` s more, to see the last
+    landing), a fall, twice the nominal time or ``seconds`` (rounded up to whole chunks of :data:`CHUNK`
+    physics steps); returns every physics step, the record ending at a fall."""
+    if int(steps) < 1:
+        raise ValueError(f"steps must be at least 1, got {steps}")
+    if seconds is not None and not seconds > 0:
+        raise ValueError(f"seconds must be positive, got {seconds!r}")
+    prog = program(mass_class)
+    advance = _recorder(mass_class)
+    data, memory = initial(prog, params)
+    params, push = jax.device_put(_arrays(params)), jax.device_put(_arrays(push))
+    ramp_steps = int(np.ceil(float(params.ramp) / float(params.step_time)))
+    wanted = ramp_steps + int(steps)
+    limit = float(params.ramp) + 2.0 * int(steps) * float(params.step_time) + settle
+    limit = limit if seconds is None else min(limit, seconds - 1e-9)
+    chunks, done_at = [], None
+    while True:
+        (data, memory), sample = advance(params, push, data, memory)
+        chunks.append(jax.tree.map(np.asarray, sample))
+        t = float(chunks[-1].t[-1])
+        down = bool(fallen(chunks[-1].qpos).any())
+        if progress:
+            progress(f"3D walk ({mass_class}): t = {t:.1f} s, {int(memory.steps)} touchdowns"
+                     + (", fallen" if down else ""))
+        if done_at is None and int(memory.steps) >= wanted:
+            done_at = t
+        if down or t >= limit or (done_at is not None and t >= done_at + settle):
+            break
+    record = jax.tree.map(lambda *parts: np.concatenate(parts), *chunks)
+    down = np.flatnonzero(fallen(record.qpos))
+    return record if not len(down) else jax.tree.map(lambda a: a[:down[0] + 1], record)
+
+
+def touchdowns(record: Walk) -> np.ndarray:
+    """Sample indices at which a foot landed (the stance changes there), (K,)."""
+    return np.flatnonzero(np.diff(record.stance)) + 1
+
+
+def drive_ratio(drives: drive_model.JointDrives, torque: np.ndarray, joint_speed: np.ndarray) -> np.ndarray:
+    """|torque| over what the drive gives at that speed on the torque's side of its line, (N, J)."""
+    low, high = (np.asarray(a) for a in drive_model.torque_limits(drives, jnp.asarray(joint_speed)))
+    return np.abs(torque) / np.where(torque >= 0, high, -low)
+
+
+def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_speed: float,
+             gait_step_length: float, steady_after: float | None = None) -> dict:
+    """The walk's figures (SI units), the steady part from the first touchdown after ``steady_after`` s
+    (default: the speed ramp plus one step) to the last touchdown.
+
+    Keys: ``steps`` (touchdowns), ``fell``, ``speed_mps`` and ``speed_ratio`` (pelvis travel over time
+    between the steady touchdowns, over the gait's speed), ``step_length_m`` and ``step_length_ratio``
+    (mean distance along x between successive landing feet), ``step_time_s``, ``touchdowns`` (per steady
+    touchdown: time, contact duration before the foot first leaves the ground again or lifts off as
+    planned, peak normal force, rebound), ``rebounds`` (landing feet that leave the ground again before
+    their planned lift-off), ``max_drive_torque_ratio`` (largest commanded |torque| over the drive line
+    at that speed: above 1 the drive saturated and gave its line), ``saturated_share``, ``slip_max_m``
+    (largest travel of a stance foot in the plane during its stance, after its first 20 ms),
+    ``cost_of_transport`` (positive joint work over weight x distance), ``lateral_drift_m``, ``max_yaw_rad``.
+    """
+    prog = program(mass_class)
+    layout = prog.layout
+    fell = bool(fallen(record.qpos[-1]))
+    landings = touchdowns(record)
+    steady_after = float(params.ramp) + float(params.step_time) if steady_after is None else steady_after
+    steady = landings[record.t[landings] > steady_after]
+    joint_speed = record.qvel[:, list(layout.qvel)]
+    ratio = drive_ratio(prog.drives, record.command, joint_speed)
+    normal = record.foot_force[..., 2]
+    events, rebounds, slips = [], 0, []
+    for k, i in enumerate(landings):
+        foot = int(record.stance[i])  # the landing foot is the new stance
+        end = landings[k + 1] if k + 1 < len(landings) else len(record.t)
+        touching = normal[i:end, foot] > CONTACT_FORCE
+        first = int(np.argmax(touching)) if touching.any() else None
+        lost = None if first is None else (np.flatnonzero(~touching[first:]) + first)
+        left_early = bool(lost is not None and len(lost) and end < len(record.t))
+        duration = ((lost[0] if left_early else end - i) - (first or 0)) * float(prog.mj_model.opt.timestep)
+        rebounds += left_early and i in steady
+        settled = min(i + 20, end - 1)
+        travel = np.linalg.norm(record.feet[settled:end, foot, :2] - record.feet[settled, foot, :2], axis=-1)
+        if i in steady and end < len(record.t):
+            slips.append(float(travel.max(initial=0.0)))
+        events.append({"t_s": float(record.t[i]), "foot": "lr"[foot], "contact_s": float(duration),
+                       "peak_normal_force_N": float(normal[i:end, foot].max(initial=0.0)), "rebound": left_early})
+    steady_events = [e for e, i in zip(events, landings) if i in steady]
+    figures = {"steps": int(len(landings)), "fell": fell, "steady_touchdowns": int(len(steady)),
+               "touchdowns": steady_events, "rebounds": int(rebounds)}
+    if len(steady) >= 2:
+        a, b = steady[0], steady[-1]
+        span = float(record.t[b] - record.t[a])
+        speed = float(record.qpos[b, 0] - record.qpos[a, 0]) / span
+        landing_x = np.array([record.feet[i, record.stance[i], 0] for i in steady])
+        lengths = np.diff(landing_x)
+        window = slice(a, b)
+        power = np.maximum(record.applied[window] * joint_speed[window], 0.0).sum(axis=1)
+        work = float(power.sum() * float(prog.mj_model.opt.timestep))
+        distance = float(record.qpos[b, 0] - record.qpos[a, 0])
+        figures.update({
+            "speed_mps": speed, "speed_ratio": speed / gait_speed,
+            "step_length_m": float(lengths.mean()), "step_length_ratio": float(lengths.mean()) / gait_step_length,
+            "step_length_range_m": [float(lengths.min()), float(lengths.max())],
+            "step_time_s": span / (len(steady) - 1),
+            "max_drive_torque_ratio": float(ratio[window].max()),
+            "saturated_share": float((ratio[window] > 1.0 + 1e-9).mean()),
+            "slip_max_m": float(max(slips, default=0.0)),
+            "cost_of_transport": work / (layout.mass * 9.81 * distance) if distance > 0 else None,
+            "lateral_drift_m": float(record.qpos[b, 1] - record.qpos[a, 1]),
+            "max_yaw_rad": float(np.abs(_yaw(record.qpos[a:b])).max()),
+        })
+    return figures
+
+
+def _yaw(qpos: np.ndarray) -> np.ndarray:
+    w, x, y, z = (qpos[..., 3 + i] for i in range(4))
+    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+@functools.lru_cache(maxsize=None)
+def _survivor(mass_class: str, physics_steps: int):
+    """One compiled program: a batch of walks of ``physics_steps`` steps (vmapped over the pushes and the
+    start states, the parameters shared), each reporting whether it stayed up and its touchdowns."""
+    prog = program(mass_class)
+
+    def one(params, push, data, memory):
+        def body(carry, _):
+            state, up = carry
+            state, _ = prog.step(params, push, state)
+            data = state[0]
+            roll, pitch = tilt(data.qpos)
+            up = up & (data.qpos[2] > FALL_HEIGHT) & (jnp.abs(roll) < FALL_TILT) & (jnp.abs(pitch) < FALL_TILT)
+            return (state, up), None
+
+        ((data, memory), up), _ = jax.lax.scan(body, ((data, memory), jnp.asarray(True)), None, length=physics_steps)
+        return up & jnp.all(jnp.isfinite(data.qpos)), memory.steps
+
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0)))
+
+
+def survive(params: walker.WalkerParams, pushes: Push, qpos: np.ndarray, qvel: np.ndarray,
+            seconds: float, mass_class: str = "12kg") -> tuple[np.ndarray, np.ndarray]:
+    """(stayed up (B,) bool, touchdowns (B,)) of B walks of ``seconds`` s from start states ``qpos`` (B, 23)
+    and ``qvel`` (B, 22), member b pushed by ``pushes`` (fields with a leading axis B); one vmapped program."""
+    prog = program(mass_class)
+    qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
+    batch = len(qpos)
+    if qpos.shape != (batch, prog.mj_model.nq) or qvel.shape != (batch, prog.mj_model.nv):
+        raise ValueError(f"qpos and qvel must have shapes (B, {prog.mj_model.nq}) and (B, {prog.mj_model.nv}), "
+                         f"got {qpos.shape} and {qvel.shape}")
+    if np.ndim(pushes.force) != 3 or np.shape(pushes.force)[0] != batch:
+        raise ValueError(f"pushes.force must have shape ({batch}, P, 3), got {np.shape(pushes.force)}")
+    if not seconds > 0:
+        raise ValueError(f"seconds must be positive, got {seconds!r}")
+    starts = [initial(prog, params, q, v) for q, v in zip(qpos, qvel)]
+    data, memory = jax.tree.map(lambda *a: jnp.stack(a), *starts)
+    steps = int(round(seconds / float(prog.mj_model.opt.timestep)))
+    up, touchdowns = _survivor(mass_class, steps)(_arrays(params), _arrays(pushes), data, memory)
+    return np.asarray(up), np.asarray(touchdowns)
+
+
+def disturbed_starts(prog: Program, params: walker.WalkerParams, batch: int, seed: int = 0,
+                     joint_error: float = 0.02, speed_error: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """``batch`` start states around :func:`start_state`: every joint off by up to ``joint_error`` rad
+    (uniform), the pelvis's velocity off by up to ``speed_error`` m/s per axis, the feet put back on the
+    ground; (qpos (B, 23), qvel (B, 22))."""
+    qpos0, qvel0 = start_state(prog, params)
+    rng = np.random.default_rng(seed)
+    data = mujoco.MjData(prog.mj_model)
+    qpos, qvel = np.tile(qpos0, (batch, 1)), np.tile(qvel0, (batch, 1))
+    joints = list(prog.layout.qpos)
+    for b in range(batch):
+        qpos[b, joints] += rng.uniform(-joint_error, joint_error, len(joints))
+        qvel[b, :3] += rng.uniform(-speed_error, speed_error, 3)
+        data.qpos[:] = qpos[b]
+        mujoco.mj_kinematics(prog.mj_model, data)
+        qpos[b, 2] -= min(_lowest_corner(prog, data, g) for g in prog.legs.foot_geoms)
+    return qpos, qvel
+
+
+def _lowest_corner(prog: Program, data: mujoco.MjData, geom: int) -> float:
+    hx, hy, hz = prog.legs.half_foot
+    corners = np.array([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
+    return float(np.min((data.geom_xpos[geom] + corners @ data.geom_xmat[geom].reshape(3, 3).T)[:, 2]))
