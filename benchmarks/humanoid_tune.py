@@ -11,7 +11,7 @@ a walk, measured inside the compiled loop:
 
 with v the pelvis's speed and n the touchdowns over the last 2 s, T the gait's step time. The best
 parameters and the figures of their walk are written to JSON; the controller's defaults
-(:data:`biped_jax.humanoid.walker.TUNED`) are copied from such a run.
+(:class:`biped_jax.humanoid.walker.WalkerParams`) are copied from such a run.
 
     python benchmarks/humanoid_tune.py [--mass-class 12kg] [--generations 40] [--population 48]
         [--seconds 5] [--start FILE.json] [--name humanoid_tune_12kg]
@@ -59,7 +59,7 @@ def main():
     import jax.numpy as jnp
     from biped_jax.humanoid import walk3d, walker
 
-    base = walker.TUNED if args.mass_class == "12kg" else walker.WalkerParams()
+    base = walker.WalkerParams()
     if args.start is not None:
         base = dataclasses.replace(base, **{k: v for k, v in json.loads(args.start.read_text())["params"].items()
                                             if k in SPACE})

@@ -21,7 +21,7 @@ SIDEWAYS = 1.0  # N s, the test's lateral push: 0.08 m/s on the 12 kg robot
 def walks():
     """Half a second from the start, unpushed and pushed sideways (+y) while the first swing leg (r) is in
     the air; both from the same compiled program."""
-    params = walker.TUNED
+    params = walker.WalkerParams()
     push = walk3d.pushes(0.0, SIDEWAYS, 0.0, 0.05, duration=0.1)
     quiet = walk3d.walk(params, "12kg", steps=1, seconds=SECONDS)
     pushed = walk3d.walk(params, "12kg", steps=1, seconds=SECONDS, push=push)
@@ -124,7 +124,7 @@ def test_the_measures_find_steps_rebounds_and_slip():
         force[span, foot, 2] = 120.0
     force[2 * step + 10:2 * step + 15, 0, 2] = 0.0  # the third landing (foot l) leaves the ground
     feet[3 * step + 50:4 * step, 1, 0] += 0.004  # foot r slides 4 mm in its stance
-    params = dataclasses.replace(walker.TUNED, ramp=0.05, step_time=0.2)
+    params = dataclasses.replace(walker.WalkerParams(), ramp=0.05, step_time=0.2)
     figures = walk3d.measures(_record(stance, feet, force, qpos), "12kg", params, gait_speed=0.5,
                               gait_step_length=0.1, steady_after=0.0)
     assert figures["steps"] == 4 and not figures["fell"]
@@ -141,7 +141,7 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match="step_time"):
         walker.WalkerParams(step_time=0.0)
     with pytest.raises(ValueError, match="steps"):
-        walk3d.walk(walker.TUNED, steps=0)
+        walk3d.walk(walker.WalkerParams(), steps=0)
     with pytest.raises(ValueError, match="duration"):
         walk3d.pushes(1.0, 1.0, 0.1, 0.2, duration=0.0)
     with pytest.raises(ValueError, match="lateral"):

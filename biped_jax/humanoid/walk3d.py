@@ -35,6 +35,10 @@ SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS = 8, 8
 FALL_HEIGHT, FALL_TILT = 0.18, 0.6
 #: A foot is in contact while the ground pushes on it with more than this, N.
 CONTACT_FORCE = 1.0
+#: Walks per call of the batched program (:func:`survive`): a larger batch is run in calls of this many.
+#: A vmapped batch of 64 walks hangs XLA's CPU runtime in this version (jax 0.10.2: no progress, every
+#: thread waiting, measured; 48 runs), so 64 runs are two calls of one compiled program.
+BATCH_LANES = 32
 
 
 @jax.tree_util.register_dataclass
@@ -384,13 +388,14 @@ def _survivor(mass_class: str, physics_steps: int):
         ((data, memory), up), _ = jax.lax.scan(body, ((data, memory), jnp.asarray(True)), None, length=physics_steps)
         return up & jnp.all(jnp.isfinite(data.qpos)), memory.steps
 
-    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, 0)))
+    return jax.jit(jax.vmap(one))
 
 
 def survive(params: walker.WalkerParams, pushes: Push, qpos: np.ndarray, qvel: np.ndarray,
             seconds: float, mass_class: str = "12kg") -> tuple[np.ndarray, np.ndarray]:
     """(stayed up (B,) bool, touchdowns (B,)) of B walks of ``seconds`` s from start states ``qpos`` (B, 23)
-    and ``qvel`` (B, 22), member b pushed by ``pushes`` (fields with a leading axis B); one vmapped program."""
+    and ``qvel`` (B, 22), member b pushed by ``pushes`` (fields with a leading axis B); one vmapped program
+    of :data:`BATCH_LANES` walks, called as often as the batch needs."""
     prog = program(mass_class)
     qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
     batch = len(qpos)
@@ -401,11 +406,22 @@ def survive(params: walker.WalkerParams, pushes: Push, qpos: np.ndarray, qvel: n
         raise ValueError(f"pushes.force must have shape ({batch}, P, 3), got {np.shape(pushes.force)}")
     if not seconds > 0:
         raise ValueError(f"seconds must be positive, got {seconds!r}")
-    starts = [initial(prog, params, q, v) for q, v in zip(qpos, qvel)]
-    data, memory = jax.tree.map(lambda *a: jnp.stack(a), *starts)
     steps = int(round(seconds / float(prog.mj_model.opt.timestep)))
-    up, touchdowns = _survivor(mass_class, steps)(_arrays(params), _arrays(pushes), data, memory)
-    return np.asarray(up), np.asarray(touchdowns)
+    program_ = _survivor(mass_class, steps)
+    lanes = min(batch, BATCH_LANES)
+    shared = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (lanes,) + jnp.shape(leaf)), _arrays(params))
+    pushes = _arrays(pushes)
+    up, touchdowns = [], []
+    for first in range(0, batch, lanes):  # the last call padded with the first runs: one program shape
+        members = [(first + k) % batch if first + k >= batch else first + k for k in range(lanes)]
+        starts = [initial(prog, params, qpos[b], qvel[b]) for b in members]
+        data, memory = jax.tree.map(lambda *a: jnp.stack(a), *starts)
+        part = jax.tree.map(lambda leaf: leaf[jnp.asarray(members)], pushes)
+        stayed, steps_taken = program_(shared, part, data, memory)
+        keep = min(lanes, batch - first)
+        up.append(np.asarray(stayed)[:keep])
+        touchdowns.append(np.asarray(steps_taken)[:keep])
+    return np.concatenate(up), np.concatenate(touchdowns)
 
 
 def disturbed_starts(prog: Program, params: walker.WalkerParams, batch: int, seed: int = 0,

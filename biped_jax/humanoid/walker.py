@@ -17,7 +17,7 @@ One step is one stance phase of fixed duration T (the optimal gait's step time);
   axis. The pitch target ``lean`` leans the torso forward; the roll target leans it over the stance foot
   by ``roll_lean``.
 - **Stance leg**: the knee by PD to ``stance_knee``; the ankle keeps the foot level (pitch, roll) plus
-  ``push`` (pitch) and ``roll_push`` (roll, outward: the centre of pressure moves out).
+  constant torques ``push`` (pitch) and ``roll_push`` (roll).
 - **Arms**: held at zero.
 - **Touchdown**: the swing foot's sole is within 1 mm of the ground after ``0.8 T``; the legs swap.
 
@@ -49,7 +49,9 @@ ARM_GAINS = (10.0, 0.3)
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class WalkerParams:
-    """The controller's parameters (scalars or, batched, arrays with a leading batch axis).
+    """The controller's parameters (scalars or, batched, arrays with a leading batch axis). The defaults
+    walk the 12 kg humanoid at the M2 gait's step time: tuned by CMA-ES over batched MJX walks (``python
+    benchmarks/humanoid_tune.py``; the run in benchmarks/results/humanoid_tune_12kg_cpu.json).
 
     Attributes:
       step_time: T, s. speed: v_des after the ramp, m/s. ramp: time over which v_des rises from 0, s.
@@ -57,8 +59,9 @@ class WalkerParams:
       speed and of speed error). forward_offset: m. lateral_gain: s. width: foot from the pelvis's
       centre line, m. swing_end: share of T at which the foot reaches its landing point in the plane.
       stance_knee: rad. lean: torso pitch target, rad (forward +). push: stance ankle pitch torque, N m.
-      roll_lean: torso roll toward the stance side, rad. roll_push: stance ankle roll torque outward,
-      N m. kp_*, kd_*: PD gains, N m/rad and N m s/rad (swing leg, torso, knees, ankles, yaw).
+      roll_lean: torso roll toward the stance side, rad. roll_push: the stance ankle's roll torque times
+      the swing side's sign (+1 for l), N m. kp_*, kd_*: PD gains, N m/rad and N m s/rad (swing leg,
+      torso, knees, ankles, yaw).
       side_speed: the pelvis's lateral speed at the start, toward the first stance foot, m/s.
       settle: time over which the landed leg's knee target moves from its touchdown angle to
       ``stance_knee``, s (a jump in the target at touchdown makes the foot rebound).
@@ -67,30 +70,30 @@ class WalkerParams:
     step_time: float = 0.36
     speed: float = 0.555
     ramp: float = 1.5
-    clearance: float = 0.04
-    forward_gain: float = 0.18
-    speed_gain: float = 0.1
-    forward_offset: float = 0.0
-    lateral_gain: float = 0.24
-    width: float = 0.085
-    swing_end: float = 0.8
-    stance_knee: float = 0.3
-    lean: float = 0.05
-    push: float = 0.0
-    roll_lean: float = 0.0
-    roll_push: float = 0.0
-    kp_swing: float = 60.0
-    kd_swing: float = 1.5
-    kp_torso: float = 60.0
-    kd_torso: float = 4.0
-    kp_knee: float = 80.0
-    kd_knee: float = 1.5
-    kp_ankle: float = 15.0
-    kd_ankle: float = 0.4
-    kp_yaw: float = 15.0
+    clearance: float = 0.0367
+    forward_gain: float = 0.1005
+    speed_gain: float = 0.0297
+    forward_offset: float = 0.0009
+    lateral_gain: float = 0.0625
+    width: float = 0.0522
+    swing_end: float = 0.8081
+    stance_knee: float = 0.3603
+    lean: float = 0.0503
+    push: float = -1.098
+    roll_lean: float = 0.0555
+    roll_push: float = 0.8404
+    kp_swing: float = 40.2306
+    kd_swing: float = 1.2652
+    kp_torso: float = 102.1231
+    kd_torso: float = 9.065
+    kp_knee: float = 71.3053
+    kd_knee: float = 1.4785
+    kp_ankle: float = 42.0149
+    kd_ankle: float = 0.578
+    kp_yaw: float = 31.9493
     kd_yaw: float = 0.5
-    side_speed: float = 0.35
-    settle: float = 0.1
+    side_speed: float = 0.2368
+    settle: float = 0.0334
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -102,33 +105,6 @@ class WalkerParams:
             if isinstance(value, (int, float)) and value <= 0:
                 raise ValueError(f"WalkerParams.{name} must be positive, got {value!r} s")
 
-
-#: The 12 kg humanoid's tuned parameters (``python benchmarks/humanoid_tune.py``; the run's JSON in
-#: benchmarks/results/humanoid_tune_12kg_cpu.json).
-TUNED = WalkerParams(
-    clearance=0.0367,
-    forward_gain=0.1005,
-    speed_gain=0.0297,
-    forward_offset=0.0009,
-    lateral_gain=0.0625,
-    width=0.0522,
-    swing_end=0.8081,
-    stance_knee=0.3603,
-    lean=0.0503,
-    push=-1.098,
-    roll_lean=0.0555,
-    roll_push=0.8404,
-    kp_swing=40.2306,
-    kd_swing=1.2652,
-    kp_torso=102.1231,
-    kd_torso=9.065,
-    kp_knee=71.3053,
-    kd_knee=1.4785,
-    kp_ankle=42.0149,
-    kd_ankle=0.578,
-    kp_yaw=31.9493,
-    side_speed=0.2368,
-    settle=0.0334)
 
 
 @jax.tree_util.register_dataclass

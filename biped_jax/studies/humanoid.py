@@ -24,9 +24,9 @@ PAPER_DRIVE = ("RE25-42V", 66.22)
 
 
 #: The robustness trial (:func:`push_trial`): runs per batch, each push's impulse in the nominal batch
-#: (N s; 1.5 N s changes the 12 kg robot's speed by 0.12 m/s), the sweep's largest impulse, how long each
+#: (N s; 0.5 N s changes the 12 kg robot's speed by 0.04 m/s), the sweep's largest impulse, how long each
 #: push lasts (s), and the walk's length after the last push (s).
-PUSH_BATCH, PUSH_IMPULSE, PUSH_SWEEP, PUSH_DURATION, PUSH_RECOVERY = 64, 1.5, 6.0, 0.1, 1.5
+PUSH_BATCH, PUSH_IMPULSE, PUSH_SWEEP, PUSH_DURATION, PUSH_RECOVERY = 64, 0.5, 2.0, 0.1, 1.5
 #: The 3D walk's models: the paper's two mass classes at the optimal gait's speed.
 WALK_MODELS = ("M2", "M4")
 
@@ -218,7 +218,7 @@ def walk_params(name: str):
     from biped_jax.humanoid import walker
     _, model = paper_model(name)
     speed, step_length = float(model.speed), float(model.step_length)
-    return dataclasses.replace(walker.TUNED, speed=speed, step_time=step_length / speed)
+    return dataclasses.replace(walker.WalkerParams(), speed=speed, step_time=step_length / speed)
 
 
 def push_trial(params, mass_class: str, batch: int, impulse: float | None, seed: int = 0) -> dict:
