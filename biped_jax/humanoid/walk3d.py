@@ -28,7 +28,7 @@ mjx = registry.import_mjx()
 CHUNK = 500
 #: The constraint solver's iteration caps in the walk (MuJoCo's defaults are 100 and 50): MJX runs a
 #: batch's solver loop until its slowest member converges, and the walk's few foot contacts converge in
-#: a handful of Newton iterations (checked against the defaults by the tests).
+#: a handful of Newton iterations (measured: 3 s of the default walk are bit-identical with the defaults).
 SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS = 8, 8
 #: The robot has fallen when its pelvis drops below this height (m) or the torso tilts beyond
 #: :data:`FALL_TILT` (rad) in roll or pitch.

@@ -222,11 +222,11 @@ def walk_params(name: str):
 
 
 def push_trial(params, mass_class: str, batch: int, impulse: float | None, seed: int = 0) -> dict:
-    """``batch`` walks from disturbed starts (:func:`biped_jax.humanoid.walk3d.disturbed_starts`), each
-    pushed once sagittally (after the ramp and four steps) and once sideways (four steps later), random
-    signs, in one vmapped program. ``impulse`` (N s) for every run, or None: run b's impulse
-    ``PUSH_SWEEP (b + 0.5) / batch`` (the sweep). Returns the runs' impulses, who stayed up, the success
-    rate and, for the sweep, the impulse at which half the runs fall (a logistic fit; None where fewer
+    """``batch`` walks from disturbed starts (:func:`biped_jax.humanoid.walk3d.disturbed_starts`), each pushed
+    once sagittally (after the ramp and four steps) and once sideways (four steps later), random signs, in one
+    vmapped program (:func:`biped_jax.humanoid.walk3d.survive`). ``impulse`` (N s) for every run, or None: run
+    b's impulse ``PUSH_SWEEP (b + 0.5) / batch`` (the sweep). Returns the runs' impulses, who stayed up, the
+    success rate and, for the sweep, the impulse at which half the runs fall (a logistic fit; None where fewer
     than one in ten or more than nine in ten fell)."""
     from biped_jax.humanoid import walk3d
     prog = walk3d.program(mass_class)
