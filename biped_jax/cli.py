@@ -6,7 +6,8 @@ into DIR; ``biped-jax solve`` does the same for one problem of the user's own. `
 DIR`` solves Kelly's five-link biped benchmark with the same optimiser and writes ``kelly.json``.
 ``biped-jax library`` solves optimal gaits over speeds and step lengths, ``biped-jax top-speed`` the
 fastest gaits under power limits and on catalogue drives. ``biped-jax donald`` walks DONALD in MJX,
-``biped-jax humanoid`` replays the optimal gait on the 16-DoF humanoid under contact, ``biped-jax
+``biped-jax humanoid`` replays the optimal gait on the 16-DoF humanoid under contact and walks it in 3D
+with its drives in the loop, ``biped-jax
 codesign`` co-optimises gear ratios and the link masses' split with the gait and compares windings and
 total masses. ``biped-jax step`` simulates one heuristic PD-controlled step, ``biped-jax models`` lists
 the robots and ``biped-jax view NAME`` opens one in MuJoCo's viewer.
@@ -215,7 +216,8 @@ def _parser() -> argparse.ArgumentParser:
     walker.add_argument("--resume", action="store_true",
                         help="with --faster: continue from the finished optimisation in --out (OUT/stages)")
     replay = subcommands.add_parser("humanoid", help="the optimal sagittal gait replayed on the 16-DoF humanoid "
-                                 "under contact in MJX (figures, JSON; it walks slower than the gait, see "
+                                 "under contact in MJX, then the humanoid walking in 3D with its drives in the "
+                                 "loop, pushed (figures, JSON, animations; both walk slower than the gait, see "
                                  "README)")
     _out_argument(replay)
     replay.add_argument("--model", default="M2", choices=("M1", "M2", "M3", "M4"),
@@ -230,7 +232,7 @@ def _parser() -> argparse.ArgumentParser:
     replay.add_argument("--walk-steps", type=_integer("walk-steps", 1, 1000), default=20,
                         help="steps of each 3D walk after its speed ramp, 1-1000 (default 20)")
     replay.add_argument("--push-batch", type=_integer("push-batch", 0, 4096), default=64,
-                        help="runs in each push trial of the 3D walks, one vmapped program (default 64; 0: none)")
+                        help="runs in each push trial of the 3D walks (default 64; 0: none)")
     _space_arguments(replay, " when solving here")
     design = subcommands.add_parser("codesign", help="co-design studies: gear ratios, windings and mass split "
                                  "optimised with the gait, windings and masses compared (figures, JSON; hours on "
