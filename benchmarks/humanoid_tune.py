@@ -75,7 +75,7 @@ def main():
             (data, memory), acc = carry
             stance, time_in_step = memory.stance, memory.time
             (data, memory), (command, applied) = prog.step(params, walk3d.NO_PUSH, (data, memory))
-            roll, pitch = walk3d.tilt(data.qpos)
+            roll, pitch, yaw = walk3d.attitude(data.qpos)
             up = acc["up"] & (data.qpos[2] > walk3d.FALL_HEIGHT) & (jnp.abs(roll) < walk3d.FALL_TILT) & (
                 jnp.abs(pitch) < walk3d.FALL_TILT)
             soles = walker.sole_heights(legs, data)
@@ -94,8 +94,7 @@ def main():
                    "saturated": acc["saturated"] + up * jnp.mean(jnp.abs(command - applied) > 1e-9),
                    "slip": acc["slip"] + up * in_stance * foot_speed * timestep,
                    "x": jnp.where(up, data.qpos[0], acc["x"]), "y": jnp.where(up, data.qpos[1], acc["y"]),
-                   "yaw": jnp.where(up, jnp.arctan2(2 * (data.qpos[3] * data.qpos[6] + data.qpos[4] * data.qpos[5]),
-                                                    1 - 2 * (data.qpos[5] ** 2 + data.qpos[6] ** 2)), acc["yaw"])}
+                   "yaw": jnp.where(up, yaw, acc["yaw"])}
             return ((data, memory), acc), None
 
         zero = jnp.asarray(0.0)

@@ -169,15 +169,12 @@ def _walk_3d_line(name: str, walk: dict) -> str:
                  f"drive line, cost of transport {walk['cost_of_transport']:.3f} (optimal step "
                  f"{walk['gait_cost_of_transport']:.3f})")
     if "push_success_rate" in walk:
+        from biped_jax.studies.humanoid import PUSH_IMPULSE
         half = walk["push_half_fall_impulse_Ns"]
-        line += (f"; pushed ({humanoid_push_impulse()} N s each way): {walk['push_success_rate']:.0%} stayed up, "
+        line += (f"; pushed ({PUSH_IMPULSE} N s each way): {walk['push_success_rate']:.0%} stayed up, "
                  f"half fall at {'-' if half is None else f'{half:.2f}'} N s")
     return line
 
-
-def humanoid_push_impulse() -> float:
-    from biped_jax.studies import humanoid as humanoid_study
-    return humanoid_study.PUSH_IMPULSE
 
 
 def codesign(out: Path, settings, iterations: int, resume: bool = False, starts: int = 64,

@@ -143,11 +143,7 @@ def start_state(prog: Program, params: walker.WalkerParams) -> tuple[np.ndarray,
     for leg in layout.legs:
         for joint, angle in zip(leg[2:5], (-knee / 2, knee, -knee / 2)):  # hip, knee, ankle: feet flat
             qpos[layout.qpos[joint]] = angle
-    data = mujoco.MjData(mj_model)
-    data.qpos[:] = qpos
-    mujoco.mj_kinematics(mj_model, data)
-    sole = min(data.geom_xpos[g][2] - prog.legs.half_foot[2] for g in prog.legs.foot_geoms)
-    qpos[2] -= sole
+    qpos[2] -= _lowest_sole(prog, qpos)
     qvel = np.zeros(mj_model.nv)
     qvel[1] = float(params.side_speed)
     return qpos, qvel
@@ -156,9 +152,10 @@ def start_state(prog: Program, params: walker.WalkerParams) -> tuple[np.ndarray,
 def initial(prog: Program, params: walker.WalkerParams, qpos: np.ndarray | None = None,
             qvel: np.ndarray | None = None):
     """(MJX data, walker memory) at the start (or at ``qpos``, ``qvel``), foot l standing."""
-    default_q, default_v = start_state(prog, params)
-    qpos = default_q if qpos is None else qpos
-    qvel = default_v if qvel is None else qvel
+    if qpos is None or qvel is None:
+        default_q, default_v = start_state(prog, params)
+        qpos = default_q if qpos is None else qpos
+        qvel = default_v if qvel is None else qvel
     data = mujoco.MjData(prog.mj_model)
     data.qpos[:], data.qvel[:] = qpos, qvel
     mujoco.mj_kinematics(prog.mj_model, data)
@@ -236,19 +233,20 @@ def _recorder(mass_class: str):
 def fallen(qpos: np.ndarray) -> np.ndarray:
     """Per sample (..., 23): the pelvis below :data:`FALL_HEIGHT`, the torso tilted beyond :data:`FALL_TILT`
     in roll or pitch, or a diverged state."""
-    roll, pitch = tilt(qpos)
+    roll, pitch, _ = attitude(qpos)
     return ~np.all(np.isfinite(qpos), axis=-1) | (qpos[..., 2] < FALL_HEIGHT) | (np.abs(roll) > FALL_TILT) | (
         np.abs(pitch) > FALL_TILT)
 
 
-def tilt(qpos):
-    """(roll, pitch) of the torso from the free joint's quaternion in qpos (..., 23), rad (the Z-Y-X
+def attitude(qpos):
+    """(roll, pitch, yaw) of the torso from the free joint's quaternion in qpos (..., 23), rad (the Z-Y-X
     angles of :func:`walker.torso_angles`); numpy or jax."""
     xp = jnp if isinstance(qpos, jax.Array) else np
     w, x, y, z = (qpos[..., 3 + i] for i in range(4))
     roll = xp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
     pitch = xp.arcsin(xp.clip(2 * (w * y - z * x), -1.0, 1.0))
-    return roll, pitch
+    yaw = xp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return roll, pitch, yaw
 
 
 def walk(params: walker.WalkerParams, mass_class: str = "12kg", steps: int = 20, push: Push = NO_PUSH,
@@ -360,14 +358,10 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
             "slip_max_m": float(max(slips, default=0.0)),
             "cost_of_transport": work / (layout.mass * 9.81 * distance) if distance > 0 else None,
             "lateral_drift_m": float(record.qpos[b, 1] - record.qpos[a, 1]),
-            "max_yaw_rad": float(np.abs(_yaw(record.qpos[a:b])).max()),
+            "max_yaw_rad": float(np.abs(attitude(record.qpos[a:b])[2]).max()),
         })
     return figures
 
-
-def _yaw(qpos: np.ndarray) -> np.ndarray:
-    w, x, y, z = (qpos[..., 3 + i] for i in range(4))
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 @functools.lru_cache(maxsize=None)
@@ -381,7 +375,7 @@ def _survivor(mass_class: str, physics_steps: int):
             state, up = carry
             state, _ = prog.step(params, push, state)
             data = state[0]
-            roll, pitch = tilt(data.qpos)
+            roll, pitch, _ = attitude(data.qpos)
             up = up & (data.qpos[2] > FALL_HEIGHT) & (jnp.abs(roll) < FALL_TILT) & (jnp.abs(pitch) < FALL_TILT)
             return (state, up), None
 
@@ -413,7 +407,7 @@ def survive(params: walker.WalkerParams, pushes: Push, qpos: np.ndarray, qvel: n
     pushes = _arrays(pushes)
     up, touchdowns = [], []
     for first in range(0, batch, lanes):  # the last call padded with the first runs: one program shape
-        members = [(first + k) % batch if first + k >= batch else first + k for k in range(lanes)]
+        members = [(first + k) % batch for k in range(lanes)]
         starts = [initial(prog, params, qpos[b], qvel[b]) for b in members]
         data, memory = jax.tree.map(lambda *a: jnp.stack(a), *starts)
         part = jax.tree.map(lambda leaf: leaf[jnp.asarray(members)], pushes)
@@ -431,19 +425,21 @@ def disturbed_starts(prog: Program, params: walker.WalkerParams, batch: int, see
     ground; (qpos (B, 23), qvel (B, 22))."""
     qpos0, qvel0 = start_state(prog, params)
     rng = np.random.default_rng(seed)
-    data = mujoco.MjData(prog.mj_model)
     qpos, qvel = np.tile(qpos0, (batch, 1)), np.tile(qvel0, (batch, 1))
     joints = list(prog.layout.qpos)
     for b in range(batch):
         qpos[b, joints] += rng.uniform(-joint_error, joint_error, len(joints))
         qvel[b, :3] += rng.uniform(-speed_error, speed_error, 3)
-        data.qpos[:] = qpos[b]
-        mujoco.mj_kinematics(prog.mj_model, data)
-        qpos[b, 2] -= min(_lowest_corner(prog, data, g) for g in prog.legs.foot_geoms)
+        qpos[b, 2] -= _lowest_sole(prog, qpos[b])
     return qpos, qvel
 
 
-def _lowest_corner(prog: Program, data: mujoco.MjData, geom: int) -> float:
+def _lowest_sole(prog: Program, qpos: np.ndarray) -> float:
+    """Height of the lowest corner of either foot above the ground at ``qpos`` (MuJoCo C kinematics), m."""
+    data = mujoco.MjData(prog.mj_model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(prog.mj_model, data)
     hx, hy, hz = prog.legs.half_foot
     corners = np.array([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
-    return float(np.min((data.geom_xpos[geom] + corners @ data.geom_xmat[geom].reshape(3, 3).T)[:, 2]))
+    return float(min(np.min((data.geom_xpos[g] + corners @ data.geom_xmat[g].reshape(3, 3).T)[:, 2])
+                     for g in prog.legs.foot_geoms))

@@ -271,7 +271,7 @@ def walk_3d(name: str, trajectory, steps: int, batch: int, progress: Callable[[s
     """Model ``name`` walking in 3D (:mod:`biped_jax.humanoid.walk3d`): ``steps`` steps after the speed ramp,
     the walk's figures, the push trials (nominal impulse and sweep, ``batch`` runs each), the cost of
     transport against the optimal step's (``trajectory``). Returns (the record for humanoid.json, the walk)."""
-    from biped_jax.humanoid import walk3d
+    from biped_jax.humanoid import free_base, walk3d
     mass_class, model = paper_model(name)
     params = walk_params(name)
     speed, step_length = float(model.speed), float(model.step_length)
@@ -281,7 +281,8 @@ def walk_3d(name: str, trajectory, steps: int, batch: int, progress: Callable[[s
     prog = walk3d.program(mass_class)
     gait_cot = gait_cost_of_transport(trajectory, prog.layout.mass, step_length)
     entry = {"free_base": True, "mass_class": mass_class, "gait_speed_mps": speed, "gait_step_length_m": step_length,
-             "drive": f"{humanoid_drive()} at every joint", "controller": dataclasses.asdict(params),
+             "drive": f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD} at every joint",
+             "controller": dataclasses.asdict(params),
              "steps_after_ramp": max(0, figures["steps"] - int(np.ceil(params.ramp / params.step_time))),
              **figures, "gait_cost_of_transport": gait_cot}
     if entry.get("cost_of_transport") is not None:
@@ -294,7 +295,3 @@ def walk_3d(name: str, trajectory, steps: int, batch: int, progress: Callable[[s
         entry["push_half_fall_impulse_Ns"] = entry["push_sweep"]["half_fall_impulse_Ns"]
     return entry, record
 
-
-def humanoid_drive() -> str:
-    from biped_jax.humanoid import free_base
-    return f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD}"
