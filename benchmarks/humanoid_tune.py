@@ -6,14 +6,15 @@ a walk, measured inside the compiled loop:
 
     10 (seconds - time upright) + 4 [fell] + 10 |v / v_gait - 1| + 5 |n T / 2 s - 1|
     + 20 (share of stance samples with the stance foot's sole above 2 mm, after its first 30 ms)
-    + 2 (share of samples with a torque beyond the drive's line) + 100 (stance foot slip per step, m)
+    + w_sat (share of samples with a torque beyond the drive's line; --saturation-weight, default 2)
+    + 100 (stance foot slip per step, m)
     + 0.5 |yaw at the end| + 0.5 |lateral drift|
 
 with v the pelvis's speed and n the touchdowns over the last 2 s, T the gait's step time. The best
 parameters and the figures of their walk are written to JSON; the controller's defaults
 (:class:`biped_jax.humanoid.walker.WalkerParams`) are copied from such a run.
 
-    python benchmarks/humanoid_tune.py [--mass-class 12kg] [--generations 40] [--population 48]
+    python benchmarks/humanoid_tune.py [--model M2] [--generations 40] [--population 48]
         [--seconds 5] [--start FILE.json] [--name humanoid_tune_12kg]
 """
 
@@ -35,14 +36,16 @@ SPACE = {
     "kp_swing": (10.0, 10.0, 150.0), "kd_swing": (0.3, 0.3, 4.0), "kp_torso": (10.0, 10.0, 150.0),
     "kd_torso": (1.0, 0.5, 10.0), "kp_knee": (15.0, 20.0, 200.0), "kd_knee": (0.3, 0.3, 4.0),
     "kp_ankle": (4.0, 2.0, 60.0), "kd_ankle": (0.1, 0.05, 2.0), "kp_yaw": (4.0, 2.0, 60.0),
-    "side_speed": (0.05, 0.0, 0.6), "settle": (0.03, 0.02, 0.3),
+    "side_speed": (0.05, 0.0, 0.6), "settle": (0.03, 0.02, 0.3), "transfer": (0.02, 0.001, 0.12),
+    "push_off": (1.0, -8.0, 8.0),
 }
 WINDOW = 2.0  # s: speed and cadence are measured over the walk's last WINDOW seconds
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--mass-class", default="12kg", choices=("12kg", "18kg"))
+    parser.add_argument("--model", default="M2", choices=("M1", "M2", "M3", "M4"),
+                        help="the paper's model whose gait speed and step time the walk is tuned for")
     parser.add_argument("--generations", type=int, default=40)
     parser.add_argument("--population", type=int, default=48)
     parser.add_argument("--seconds", type=float, default=5.0)
@@ -51,6 +54,8 @@ def main():
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default=None)
+    parser.add_argument("--saturation-weight", type=float, default=2.0,
+                        help="cost per unit share of samples with a torque beyond the drive's line")
     args = parser.parse_args()
     from biped_jax.commands import configure_jax
     configure_jax()
@@ -58,8 +63,10 @@ def main():
     import jax
     import jax.numpy as jnp
     from biped_jax.humanoid import walk3d, walker
+    from biped_jax.studies.humanoid import paper_model, walk_params
 
-    base = walker.WalkerParams()
+    args.mass_class = paper_model(args.model)[0]
+    base = walk_params(args.model)
     if args.start is not None:
         base = dataclasses.replace(base, **{k: v for k, v in json.loads(args.start.read_text())["params"].items()
                                             if k in SPACE})
@@ -119,7 +126,7 @@ def main():
                  "speed": 10.0 * np.abs(speed / float(base.speed) - 1.0),
                  "cadence": 5.0 * np.abs(cadence - 1.0),
                  "lifted": 20.0 * acc["lifted"] / np.maximum(acc["stance_samples"], 1.0),
-                 "saturated": 2.0 * acc["saturated"] / physics_steps,
+                 "saturated": args.saturation_weight * acc["saturated"] / physics_steps,
                  "slip": 100.0 * acc["slip"] / np.maximum(acc["steps"], 1),
                  "heading": 0.5 * np.abs(acc["yaw"]) + 0.5 * np.abs(acc["y"])}
         walking = {k: v * acc["up"] for k, v in terms.items() if k != "fall"}
@@ -154,8 +161,9 @@ def main():
               f"{row['cadence']:.2f}, upright {row['upright_s']:.2f} s), median {row['median_cost']:.2f}, "
               f"{row['upright_share']:.0%} upright, {row['seconds']:.0f} s; best so far {best['cost']:.3f}", flush=True)
         save_results(args.name or f"humanoid_tune_{args.mass_class}",
-                     {"mass_class": args.mass_class, "population": args.population, "seconds": args.seconds,
-                      "sigma": args.sigma, "seed": args.seed, "space": SPACE,
+                     {"model": args.model, "mass_class": args.mass_class, "population": args.population,
+                      "seconds": args.seconds, "sigma": args.sigma, "seed": args.seed,
+                      "saturation_weight": args.saturation_weight, "space": SPACE,
                       "start": {n: float(v) for n, v in zip(names, origin)},
                       "fixed": {k: float(getattr(base, k)) for k in ("step_time", "speed", "ramp")},
                       "wall_s": time.perf_counter() - started},

@@ -9,6 +9,7 @@ import pytest
 from biped_jax.drives import model as drive_model
 from biped_jax.humanoid import free_base
 from biped_jax.robots import registry
+from biped_jax.robots.mjcf import HUMANOID_ACTUATED_JOINTS
 
 mjx = registry.import_mjx()
 
@@ -111,11 +112,28 @@ def test_the_torque_is_clipped_to_the_speed_torque_line_at_the_joints_speed():
     np.testing.assert_allclose(applied, [3.0, -6.5, float(high[2]), 1.0, float(low[4]), float(low[5])])
 
 
+def test_two_drives_in_parallel_give_twice_the_line_and_the_inertia():
+    """Two of the drives on each hip roll: twice the torque at every speed on both sides (the same no-load
+    speed), twice the gear's limit and the reflected inertia; the other joints keep one drive."""
+    one, two = free_base.walk_drives(), free_base.walk_drives(parallel=("hip_roll",))
+    rolls = [i for i, name in enumerate(HUMANOID_ACTUATED_JOINTS) if name.startswith("hip_roll")]
+    others = [i for i in range(len(HUMANOID_ACTUATED_JOINTS)) if i not in rolls]
+    for speed in (0.0, 8.0, -15.0, 40.0):
+        single = np.asarray(drive_model.torque_limits(one, jnp.full(16, speed)))
+        double = np.asarray(drive_model.torque_limits(two, jnp.full(16, speed)))
+        np.testing.assert_allclose(double[:, rolls], 2 * single[:, rolls], rtol=1e-12)
+        np.testing.assert_allclose(double[:, others], single[:, others], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(two.reflected_inertia)[rolls], 2 * float(one.reflected_inertia))
+    assert float(np.asarray(drive_model.torque_limits(two, jnp.zeros(16))[1])[rolls[0]]) == pytest.approx(13.0)
+
+
 def test_an_unknown_mass_class_or_part_is_named():
     with pytest.raises(ValueError, match="'9kg'"):
         free_base.free_base_humanoid("9kg")
     with pytest.raises(ValueError, match="GP32A-7"):
         free_base.walk_drives(gearhead="GP32A-7")
+    with pytest.raises(ValueError, match="hip_rol"):
+        free_base.walk_drives(parallel=("hip_rol",))
     model = free_base.free_base_humanoid("12kg")
     with pytest.raises(ValueError, match="got 2"):
         free_base.single_support_torques(model, model.qpos0, 2)

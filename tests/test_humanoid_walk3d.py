@@ -140,6 +140,8 @@ def test_the_measures_find_steps_rebounds_and_slip():
 def test_bad_input_is_named():
     with pytest.raises(ValueError, match="step_time"):
         walker.WalkerParams(step_time=0.0)
+    with pytest.raises(ValueError, match="transfer"):
+        walker.WalkerParams(step_time=0.3, transfer=0.3)
     with pytest.raises(ValueError, match="steps"):
         walk3d.walk(walker.WalkerParams(), steps=0)
     with pytest.raises(ValueError, match="duration"):

@@ -36,12 +36,25 @@ LEG_JOINTS = ("hip_yaw", "hip_roll", "hip_pitch", "knee", "ankle_pitch", "ankle_
 
 
 def walk_drives(motor: str = WALK_MOTOR, gearhead: str = WALK_GEARHEAD,
-                supply_voltage: float | None = None) -> drive_model.JointDrives:
+                supply_voltage: float | None = None, parallel: tuple[str, ...] = ()) -> drive_model.JointDrives:
     """One catalogue drive at every joint (fields of shape ()), at the catalogue's supply voltage unless
-    given (V); raises ValueError naming an unknown part."""
+    given (V); ``parallel``: joints of both legs (names from :data:`LEG_JOINTS`) driven by two such drives on
+    one shaft, fields then per actuator (16,). Raises ValueError naming an unknown part or joint."""
     catalogue = drive_model.load_catalogue()
     voltage = catalogue.supply_voltage if supply_voltage is None else supply_voltage
-    return drive_model.catalogue_drives(motor, gearhead, voltage, catalogue)
+    drives = drive_model.catalogue_drives(motor, gearhead, voltage, catalogue)
+    unknown = sorted(set(parallel) - set(LEG_JOINTS))
+    if unknown:
+        raise ValueError(f"unknown leg joint(s) {unknown} in parallel; known: {', '.join(LEG_JOINTS)}")
+    if not parallel:
+        return drives
+    count = np.array([2.0 if name.rsplit("_", 1)[0] in parallel else 1.0 for name in HUMANOID_ACTUATED_JOINTS])
+    # n identical motors on one shaft: n times the torque at every speed (the windings in parallel: R / n),
+    # the gears' torque limits and the reflected inertias add up
+    return dataclasses.replace(
+        jax.tree.map(lambda field: jnp.broadcast_to(field, count.shape), drives),
+        resistance=drives.resistance / count, gear_torque_limit=drives.gear_torque_limit * count,
+        reflected_inertia=drives.reflected_inertia * count)
 
 
 def free_base_humanoid(mass_class: str = "12kg", drives: drive_model.JointDrives | None = None) -> mujoco.MjModel:

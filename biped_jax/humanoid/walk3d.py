@@ -81,10 +81,23 @@ def pushes(sagittal: float, lateral: float, sagittal_at: float, lateral_at: floa
     return Push(start=jnp.asarray([sagittal_at, lateral_at]), duration=jnp.full(2, duration), force=jnp.asarray(force))
 
 
+#: Leg joints driven by two of the recommended drives in parallel, per mass class: standing on one leg the
+#: 18 kg robot's stance hip roll must hold 11.7 N m (docs/studies.md), more than one GP 32 A gives (6.5 N m).
+PARALLEL_DRIVES = {"12kg": (), "18kg": ("hip_roll",)}
+
+
+def walk_drives(mass_class: str = "12kg"):
+    """The drives of the walk of ``mass_class``: the recommended one at every joint, two in parallel at
+    the joints of :data:`PARALLEL_DRIVES`."""
+    if mass_class not in PARALLEL_DRIVES:
+        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: {', '.join(map(repr, PARALLEL_DRIVES))}")
+    return free_base.walk_drives(parallel=PARALLEL_DRIVES[mass_class])
+
+
 def walk_model(mass_class: str = "12kg") -> mujoco.MjModel:
-    """The free-base humanoid of the walk (:func:`free_base.free_base_humanoid`, the recommended drive's
-    reflected inertia at every joint) with the walk's solver caps."""
-    model = free_base.free_base_humanoid(mass_class)
+    """The free-base humanoid of the walk (:func:`free_base.free_base_humanoid`, the reflected inertia of
+    :func:`walk_drives` at every joint) with the walk's solver caps."""
+    model = free_base.free_base_humanoid(mass_class, walk_drives(mass_class))
     model.opt.iterations, model.opt.ls_iterations = SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS
     return model
 
@@ -109,7 +122,7 @@ def program(mass_class: str = "12kg") -> Program:
     mj_model = walk_model(mass_class)
     layout = free_base.FreeLayout.of(mj_model)
     legs = walker.Legs.of(mj_model)
-    drives = free_base.walk_drives()
+    drives = walk_drives(mass_class)
     model = registry.put_mjx_model(mj_model)
     joint_speed = jnp.asarray(layout.qvel)
     timestep = float(mj_model.opt.timestep)

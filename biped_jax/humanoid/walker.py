@@ -8,16 +8,19 @@ One step is one stance phase of fixed duration T (the optimal gait's step time);
   ``forward_gain v + speed_gain (v - v_des)`` ahead of the pelvis and ``width + lateral_gain v_y``
   beside it (m, world axes, v the pelvis velocity in m/s). Re-evaluated every physics step until
   touchdown: that continuous feedback is what balances the robot, sideways as much as forward.
-- **Swing foot**: from its lift-off point to the landing point on a smoothstep in the plane and a sin^2
+- **Double support**: for ``transfer`` s after a touchdown both feet stay down and the torso's torque
+  (below) moves from the leg that leaves support to the landed one (one hip holding the landing's
+  transient alone saturated its drive).
+- **Swing foot**: then from its lift-off point to the landing point on a smoothstep in the plane and a sin^2
   lift of ``clearance`` that returns to the ground at T (then 10 mm below it, so a late step still lands);
   the hip roll, hip pitch and knee follow the leg's inverse kinematics (thigh and shank lengths from the
   model) by PD; the ankle keeps the foot level in the world, so it lands flat.
 - **Torso** (SIMBICON, Yin, Loken and van de Panne 2007): the torso's roll, pitch and yaw are held by PD
   in the world frame, through the stance hip: stance hip torque = - torso torque - swing hip torque, per
-  axis. The pitch target ``lean`` leans the torso forward; the roll target leans it over the stance foot
-  by ``roll_lean``.
+  axis (in double support the two hips share the torso's torque). The pitch target ``lean`` leans the
+  torso forward; the roll target leans it over the stance foot by ``roll_lean``.
 - **Stance leg**: the knee by PD to ``stance_knee``; the ankle keeps the foot level (pitch, roll) plus
-  constant torques ``push`` (pitch) and ``roll_push`` (roll).
+  constant torques ``push`` (pitch) and ``roll_push`` (roll), and ``push_off`` late in the step.
 - **Arms**: held at zero.
 - **Touchdown**: the swing foot's sole is within 1 mm of the ground after ``0.8 T``; the legs swap.
 
@@ -42,6 +45,8 @@ TOUCHDOWN_HEIGHT = 1e-3
 EARLIEST_TOUCHDOWN = 0.95
 #: How far below the ground the swing foot is aimed once its step time is up, m.
 LATE_DEPTH = 0.01
+#: Share of the step over which the stance ankle pushes off (``WalkerParams.push_off``).
+PUSH_OFF_SHARE = 0.3
 #: Arm hold: stiffness (N m/rad), damping (N m s/rad).
 ARM_GAINS = (10.0, 0.3)
 
@@ -65,6 +70,10 @@ class WalkerParams:
       side_speed: the pelvis's lateral speed at the start, toward the first stance foot, m/s.
       settle: time over which the landed leg's knee target moves from its touchdown angle to
       ``stance_knee``, s (a jump in the target at touchdown makes the foot rebound).
+      transfer: time after touchdown over which the torso's torque moves from the leg that just left
+      support to the landed one, s (the landing's transient, held by one hip, saturates its drive).
+      push_off: the stance ankle's extra pitch torque over the step's last :data:`PUSH_OFF_SHARE`, rising
+      linearly to this value at T, N m (energy put in before the landing instead of lost in it).
     """
 
     step_time: float = 0.36
@@ -94,16 +103,22 @@ class WalkerParams:
     kd_yaw: float = 0.5
     side_speed: float = 0.2368
     settle: float = 0.0334
+    transfer: float = 1e-3
+    push_off: float = 0.0
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
             value = getattr(self, field.name)
             if isinstance(value, (int, float)) and not np.isfinite(value):
                 raise ValueError(f"WalkerParams.{field.name} must be finite, got {value!r}")
-        for name in ("step_time", "ramp", "settle"):
+        for name in ("step_time", "ramp", "settle", "transfer"):
             value = getattr(self, name)
             if isinstance(value, (int, float)) and value <= 0:
                 raise ValueError(f"WalkerParams.{name} must be positive, got {value!r} s")
+        if isinstance(self.transfer, (int, float)) and isinstance(self.step_time, (int, float)) \
+                and self.transfer >= self.step_time:
+            raise ValueError(f"WalkerParams.transfer ({self.transfer!r} s) must be shorter than the step "
+                             f"time ({self.step_time!r} s)")
 
 
 
@@ -200,7 +215,8 @@ def control(params: WalkerParams, layout: FreeLayout, legs: Legs, data, memory: 
     joints = jnp.asarray(layout.legs)
     stance, swing = joints[memory.stance], joints[1 - memory.stance]
     side = jnp.where(memory.stance == 1, 1.0, -1.0)  # the swing leg's side: +1 l, -1 r
-    phase = memory.time / params.step_time
+    # the swing foot stays down while the landed leg takes the torso over (double support), then swings
+    phase = jnp.maximum(memory.time - params.transfer, 0.0) / (params.step_time - params.transfer)
     # the swing ankle's target from the pelvis (world axes): the lift-off point blended into the landing
     # point in the plane, lifted off the ground and put back at T
     s = jnp.clip(phase / params.swing_end, 0.0, 1.0)
@@ -219,13 +235,19 @@ def control(params: WalkerParams, layout: FreeLayout, legs: Legs, data, memory: 
     torso_roll = params.kp_torso * (side * params.roll_lean - angles[0]) - params.kd_torso * rate[0]
     torso_pitch = params.kp_torso * (params.lean - angles[1]) - params.kd_torso * rate[1]
     torso_yaw = params.kp_yaw * (0.0 - angles[2]) - params.kd_yaw * rate[2]
+    # the hips' torques on the torso add up to the torso's torque; the landed leg takes it over in ``transfer``
+    share = jnp.clip(memory.time / params.transfer, 0.0, 1.0)
     torque = jnp.zeros(len(layout.qpos))
-    torque = (torque.at[swing[0]].set(swing_yaw).at[swing[1]].set(swing_roll).at[swing[2]].set(swing_pitch)
+    torque = (torque.at[swing[0]].set(swing_yaw - (1 - share) * torso_yaw)
+              .at[swing[1]].set(swing_roll - (1 - share) * torso_roll)
+              .at[swing[2]].set(swing_pitch - (1 - share) * torso_pitch)
               .at[swing[3]].set(pd(params.kp_knee, params.kd_knee, knee, swing[3])))
-    torque = (torque.at[stance[0]].set(-torso_yaw - swing_yaw).at[stance[1]].set(-torso_roll - swing_roll)
-              .at[stance[2]].set(-torso_pitch - swing_pitch)
+    torque = (torque.at[stance[0]].set(-share * torso_yaw - swing_yaw)
+              .at[stance[1]].set(-share * torso_roll - swing_roll)
+              .at[stance[2]].set(-share * torso_pitch - swing_pitch)
               .at[stance[3]].set(pd(params.kp_knee, params.kd_knee, stance_knee, stance[3])))
-    for leg, push, roll_push in ((swing, 0.0, 0.0), (stance, params.push, side * params.roll_push)):
+    push_off = params.push_off * jnp.clip((memory.time / params.step_time - 1.0) / PUSH_OFF_SHARE + 1.0, 0.0, 1.0)
+    for leg, push, roll_push in ((swing, 0.0, 0.0), (stance, params.push + push_off, side * params.roll_push)):
         foot_pitch = angles[1] + q[leg[2]] + q[leg[3]] + q[leg[4]]
         foot_roll = angles[0] + q[leg[1]] + q[leg[5]]
         torque = torque.at[leg[4]].set(params.kp_ankle * -foot_pitch - params.kd_ankle * qd[leg[4]] + push)

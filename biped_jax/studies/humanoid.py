@@ -281,7 +281,8 @@ def walk_3d(name: str, trajectory, steps: int, batch: int, progress: Callable[[s
     prog = walk3d.program(mass_class)
     gait_cot = gait_cost_of_transport(trajectory, prog.layout.mass, step_length)
     entry = {"free_base": True, "mass_class": mass_class, "gait_speed_mps": speed, "gait_step_length_m": step_length,
-             "drive": f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD} at every joint",
+             "drive": f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD} at every joint" + "".join(
+                 f", two in parallel at each {joint}" for joint in walk3d.PARALLEL_DRIVES[mass_class]),
              "controller": dataclasses.asdict(params),
              "steps_after_ramp": max(0, figures["steps"] - int(np.ceil(params.ramp / params.step_time))),
              **figures, "gait_cost_of_transport": gait_cot}
