@@ -142,6 +142,10 @@ def test_bad_input_is_named():
         walker.WalkerParams(step_time=0.0)
     with pytest.raises(ValueError, match="transfer"):
         walker.WalkerParams(step_time=0.3, transfer=0.3)
+    with pytest.raises(ValueError, match="'9kg'"):
+        walker.tuned("9kg")
+    with pytest.raises(ValueError, match="'9kg'"):
+        walk3d.walk_drives("9kg")
     with pytest.raises(ValueError, match="steps"):
         walk3d.walk(walker.WalkerParams(), steps=0)
     with pytest.raises(ValueError, match="duration"):

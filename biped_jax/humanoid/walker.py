@@ -122,6 +122,24 @@ class WalkerParams:
 
 
 
+#: The numbers tuned for the 18 kg robot (its hip rolls on two drives each, ``walk3d.PARALLEL_DRIVES``)
+#: where they differ from the defaults (the 12 kg robot's): ``python benchmarks/humanoid_tune.py --model M4``,
+#: the run in benchmarks/results/humanoid_tune_M4_cpu.json.
+TUNED_18KG = {"clearance": 0.018, "forward_gain": 0.1058, "speed_gain": 0.0261, "forward_offset": 0.0015,
+              "lateral_gain": 0.0819, "width": 0.05, "swing_end": 0.8532, "stance_knee": 0.2874,
+              "lean": -0.0059, "push": -0.8065, "roll_lean": 0.0911, "roll_push": 0.6004, "kp_swing": 56.9186,
+              "kd_swing": 0.9783, "kp_torso": 102.1298, "kd_torso": 8.3732, "kp_knee": 63.7813,
+              "kd_knee": 1.435, "kp_ankle": 45.7295, "kd_ankle": 0.6521, "kp_yaw": 31.637,
+              "side_speed": 0.2438, "settle": 0.0279, "transfer": 0.0082, "push_off": 0.2346}
+
+
+def tuned(mass_class: str) -> WalkerParams:
+    """The tuned controller of ``mass_class`` ('12kg': the defaults; '18kg': :data:`TUNED_18KG`)."""
+    if mass_class not in ("12kg", "18kg"):
+        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: '12kg', '18kg'")
+    return WalkerParams(**(TUNED_18KG if mass_class == "18kg" else {}))
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class WalkerMemory:

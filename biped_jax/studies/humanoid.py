@@ -214,11 +214,12 @@ def gait_cost_of_transport(trajectory, mass: float, step_length: float) -> float
 
 
 def walk_params(name: str):
-    """The controller's parameters for model ``name``: the tuned set at the model's speed and step time."""
+    """The controller's parameters for model ``name``: its mass class's tuned set
+    (:func:`biped_jax.humanoid.walker.tuned`) at the model's speed and step time."""
     from biped_jax.humanoid import walker
-    _, model = paper_model(name)
+    mass_class, model = paper_model(name)
     speed, step_length = float(model.speed), float(model.step_length)
-    return dataclasses.replace(walker.WalkerParams(), speed=speed, step_time=step_length / speed)
+    return dataclasses.replace(walker.tuned(mass_class), speed=speed, step_time=step_length / speed)
 
 
 def push_trial(params, mass_class: str, batch: int, impulse: float | None, seed: int = 0) -> dict:
