@@ -22,7 +22,7 @@ One step is one stance phase of fixed duration T (the optimal gait's step time);
 - **Stance leg**: the knee by PD to ``stance_knee``; the ankle keeps the foot level (pitch, roll) plus
   constant torques ``push`` (pitch) and ``roll_push`` (roll), and ``push_off`` late in the step.
 - **Arms**: held at zero.
-- **Touchdown**: the swing foot's sole is within 1 mm of the ground after ``0.8 T``; the legs swap.
+- **Touchdown**: the swing foot's sole is within 1 mm of the ground after ``0.95 T``; the legs swap.
 
 Every torque is then clipped to the drive's speed-torque line by the caller
 (:func:`biped_jax.humanoid.free_base.drive_torques`). Angles in rad, lengths in m, SI throughout.
