@@ -10,12 +10,15 @@ a walk, measured inside the compiled loop:
     + 100 (stance foot slip per step, m)
     + 0.5 |yaw at the end| + 0.5 |lateral drift|
 
-with v the pelvis's speed and n the touchdowns over the last 2 s, T the gait's step time. The best
+with v the pelvis's speed and n the touchdowns over the last 2 s, T the gait's step time. With
+``--disturbed K`` each candidate also walks from K disturbed starts (new errors each generation, the same
+for every candidate; the walks run in calls of ``--population``) and its cost is the mean over its starts:
+tuned on the nominal start alone, the best numbers can sit on a knife edge. The best
 parameters and the figures of their walk are written to JSON; the controller's defaults
 (:class:`biped_jax.humanoid.walker.WalkerParams`) are copied from such a run.
 
     python benchmarks/humanoid_tune.py [--model M2] [--generations 40] [--population 48]
-        [--seconds 5] [--start FILE.json] [--name humanoid_tune_12kg]
+        [--seconds 5] [--disturbed 0] [--start FILE.json] [--name humanoid_tune_12kg]
 """
 
 import argparse
@@ -54,6 +57,9 @@ def main():
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default=None)
+    parser.add_argument("--disturbed", type=int, default=0,
+                        help="disturbed starts per candidate beside the nominal one (walk3d.disturbed_starts; "
+                             "new errors each generation); the cost is the mean over the starts")
     parser.add_argument("--saturation-weight", type=float, default=2.0,
                         help="cost per unit share of samples with a torque beyond the drive's line")
     args = parser.parse_args()
@@ -114,12 +120,25 @@ def main():
 
     batched = jax.jit(jax.vmap(walk_cost_terms))
 
-    def evaluate(candidates):
+    def run(params, starts):
+        """The walks' accumulated terms, in calls of --population walks (one program for any number)."""
+        parts = []
+        for first in range(0, len(params), args.population):
+            chunk = list(range(first, min(first + args.population, len(params))))
+            chunk += [chunk[0]] * (args.population - len(chunk))  # padded: one program shape
+            data, memory = jax.tree.map(lambda *a: jnp.stack(a), *[starts[i] for i in chunk])
+            stacked = jax.tree.map(lambda *a: jnp.asarray(np.array(a, dtype=float)), *[params[i] for i in chunk])
+            parts.append(jax.tree.map(np.asarray, batched(stacked, data, memory)))
+        return jax.tree.map(lambda *a: np.concatenate(a)[:len(params)], *parts)
+
+    def evaluate(candidates, seed):
         params = [dataclasses.replace(base, **dict(zip(names, map(float, c)))) for c in candidates]
-        starts = [walk3d.initial(prog, p) for p in params]
-        data, memory = jax.tree.map(lambda *a: jnp.stack(a), *starts)
-        stacked = jax.tree.map(lambda *a: jnp.asarray(np.array(a, dtype=float)), *params)
-        acc = jax.tree.map(np.asarray, batched(stacked, data, memory))
+        starts, rows = [], []
+        for p in params:  # the nominal start, then --disturbed starts (the same errors for every candidate)
+            qpos, qvel = walk3d.disturbed_starts(prog, p, args.disturbed, seed) if args.disturbed else ([], [])
+            starts += [walk3d.initial(prog, p)] + [walk3d.initial(prog, p, q, v) for q, v in zip(qpos, qvel)]
+            rows += [p] * (1 + args.disturbed)
+        acc = run(rows, starts)
         speed = (acc["x"] - acc["x_window"]) / WINDOW
         cadence = acc["steps_window"] * float(base.step_time) / WINDOW
         terms = {"fall": 10.0 * (args.seconds - acc["upright"]) + 4.0 * ~acc["up"],
@@ -131,8 +150,11 @@ def main():
                  "heading": 0.5 * np.abs(acc["yaw"]) + 0.5 * np.abs(acc["y"])}
         walking = {k: v * acc["up"] for k, v in terms.items() if k != "fall"}
         cost = terms["fall"] + sum(walking.values())
-        return cost, {"speed_mps": speed, "cadence": cadence, "upright_s": acc["upright"], **{
+        figures = {"speed_mps": speed, "cadence": cadence, "upright_s": acc["upright"], **{
             f"cost_{k}": v for k, v in {**walking, "fall": terms["fall"]}.items()}}
+        # a candidate's cost and figures: the mean over its starts
+        per_candidate = lambda a: np.asarray(a, dtype=float).reshape(len(params), -1).mean(axis=1)  # noqa: E731
+        return per_candidate(cost), {k: per_candidate(v) for k, v in figures.items()}
 
     scale = np.array([SPACE[n][0] for n in names])
     low, high = np.array([SPACE[n][1] for n in names]), np.array([SPACE[n][2] for n in names])
@@ -147,7 +169,7 @@ def main():
     for generation in range(args.generations):
         tick = time.perf_counter()
         zs = es.ask()
-        cost, figures = evaluate([candidate(z) for z in zs])
+        cost, figures = evaluate([candidate(z) for z in zs], seed=args.seed * 1000 + generation)
         es.tell(zs, cost.tolist())
         i = int(np.argmin(cost))
         row = {"generation": generation, "best_cost": float(cost[i]), "median_cost": float(np.median(cost)),
@@ -163,7 +185,8 @@ def main():
         save_results(args.name or f"humanoid_tune_{args.mass_class}",
                      {"model": args.model, "mass_class": args.mass_class, "population": args.population,
                       "seconds": args.seconds, "sigma": args.sigma, "seed": args.seed,
-                      "saturation_weight": args.saturation_weight, "space": SPACE,
+                      "saturation_weight": args.saturation_weight, "disturbed": args.disturbed,
+                      "space": SPACE,
                       "start": {n: float(v) for n, v in zip(names, origin)},
                       "fixed": {k: float(getattr(base, k)) for k in ("step_time", "speed", "ramp")},
                       "wall_s": time.perf_counter() - started},
