@@ -133,11 +133,15 @@ TUNED_18KG = {"clearance": 0.018, "forward_gain": 0.1058, "speed_gain": 0.0261, 
               "side_speed": 0.2438, "settle": 0.0279, "transfer": 0.0082, "push_off": 0.2346}
 
 
+#: Each mass class's tuned numbers where they differ from the defaults.
+TUNED = {"12kg": {}, "18kg": TUNED_18KG}
+
+
 def tuned(mass_class: str) -> WalkerParams:
     """The tuned controller of ``mass_class`` ('12kg': the defaults; '18kg': :data:`TUNED_18KG`)."""
-    if mass_class not in ("12kg", "18kg"):
-        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: '12kg', '18kg'")
-    return WalkerParams(**(TUNED_18KG if mass_class == "18kg" else {}))
+    if mass_class not in TUNED:
+        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: {', '.join(map(repr, TUNED))}")
+    return WalkerParams(**TUNED[mass_class])
 
 
 @jax.tree_util.register_dataclass
