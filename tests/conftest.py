@@ -4,6 +4,7 @@ LLVM optimisation passes (below)."""
 
 import dataclasses
 import os
+import pickle
 from pathlib import Path
 
 #: On an empty cache the suite's time is mostly XLA compiling its programs, which then run for a few
@@ -112,11 +113,25 @@ def short_solver():
 
 
 @pytest.fixture(scope="session")
-def paper_solutions(short_solver):
+def paper_solutions(short_solver, tmp_path_factory, worker_id):
     """M1-M4 in one batch from the default start family (the program `biped-jax reproduce --spans 4
-    --substeps 4` compiles for its refined-space stage)."""
+    --substeps 4` compiles for its refined-space stage). Solved once per run: under pytest-xdist the
+    first worker to ask solves and saves them beside the workers' temporary folders, the others load
+    them (about 45 s each on 2 cores, most of it tracing and compiling the solver's programs)."""
     from biped_jax.studies import paper as study
-    return short_solver.solve([r.name for r in study.PAPER_MODELS], study.paper_gait_models(study.PAPER_MODELS))
+
+    def solve():
+        return short_solver.solve([r.name for r in study.PAPER_MODELS], study.paper_gait_models(study.PAPER_MODELS))
+    if worker_id == "master":
+        return solve()
+    from filelock import FileLock
+    shared = tmp_path_factory.getbasetemp().parent / "paper_solutions.pickle"
+    with FileLock(f"{shared}.lock"):
+        if shared.is_file():
+            return pickle.loads(shared.read_bytes())
+        solutions = solve()
+        shared.write_bytes(pickle.dumps(solutions))
+        return solutions
 
 
 #: The costliest xdist groups first (pytest-xdist hands out groups in collection order with
