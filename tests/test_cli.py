@@ -71,6 +71,7 @@ def test_models_command_lists_every_model(capsys):
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("test_gait")  # its study's solver shares the programs of the gait tests' solver
 def test_reproduce_writes_the_study(tmp_path):
     """The main job at a short horizon with the planar-chain dynamics (equal to MJX's,
     tests/test_planar_chain.py; several times faster): files exist and results.json is consistent

@@ -158,6 +158,43 @@ def _check_options(options) -> None:
                         f"{type(options).__name__}")
 
 
+#: (GaitSettings, mass class template) -> what :func:`_programs` made: the programs and their caches that
+#: every :class:`GaitSolver` of those settings shares, so that a second solver (another study's stage, a
+#: script's second solver) does not trace and compile them again (about 25 s per problem kind and batch
+#: shape at 4 knot spans on 2 cores, even with the compilation cache warm).
+_PROGRAMS: dict = {}
+
+
+def _programs(settings: gait_problem.GaitSettings, mass_class_template: str) -> dict:
+    """The attributes of a :class:`GaitSolver` that depend only on ``settings`` and the template: the
+    biped, the problem of every kind, the interior point's programs and colourings (filled on first
+    use), the rollout checks and the initial guess."""
+    biped = mjx_biped.load_planar_biped(mass_class_template)  # designs replace its masses
+
+    def residuals(x, model):
+        trajectory = gait_problem.simulate(x, model, biped, settings)
+        equalities, inequalities = gait_problem.scaled_constraints(
+            gait_problem.constraint_groups(trajectory, model, settings))
+        return gait_problem.cost_residuals(trajectory, model.drives), equalities, inequalities
+
+    # every kind of the problem (biped_jax.gait.kinds): the energy one in x, the others with their
+    # columns beside x (the power limit, the step length, the speed)
+    problems = {kind: kinds.kind_problem(kind, residuals, settings.size) for kind in kinds.KINDS}
+    refined_settings = gait_problem.refined(settings)
+    leg_length = PLANAR_SPECS[mass_class_template].leg_length
+    return dict(
+        biped=biped, leg_length=leg_length, problems=problems, problem=problems["energy"],
+        limit_problem=problems["limit"], step_problem=problems["step"], speed_problem=problems["speed"],
+        _interior={},     # (problem kind, options) -> the interior point's compiled programs
+        _structures={},   # problem kind -> (the problem as the interior point sees it, its colouring)
+        refined_settings=refined_settings,
+        # the report's rollouts and verdict numbers, a batch per call: one program per grid and report_batch
+        _checks={grid: jax.jit(jax.vmap(functools.partial(verdict.rollout_check, biped=biped, settings=grid)))
+                 for grid in (settings, refined_settings)},
+        _initial_guess=jax.jit(jax.vmap(functools.partial(gait_problem.initial_guess, settings=settings,
+                                                          leg_length=leg_length))))
+
+
 class GaitSolver:
     """Compiles once per :class:`~biped_jax.gait.problem.GaitSettings` and solves batches of models.
 
@@ -179,30 +216,11 @@ class GaitSolver:
         self.require_refinement = require_refinement and check_refinement
         self.check_refinement = check_refinement
         self.mass_class = mass_class_template
-        self.biped = mjx_biped.load_planar_biped(mass_class_template)  # designs replace its masses
-        self.leg_length = PLANAR_SPECS[mass_class_template].leg_length
-        biped, settings_ = self.biped, settings
-
-        def residuals(x, model):
-            trajectory = gait_problem.simulate(x, model, biped, settings_)
-            equalities, inequalities = gait_problem.scaled_constraints(
-                gait_problem.constraint_groups(trajectory, model, settings_))
-            return gait_problem.cost_residuals(trajectory, model.drives), equalities, inequalities
-
-        # every kind of the problem (biped_jax.gait.kinds): the energy one in x, the others with their
-        # columns beside x (the power limit, the step length, the speed)
-        self.problems = {kind: kinds.kind_problem(kind, residuals, settings.size) for kind in kinds.KINDS}
-        self.problem, self.limit_problem = self.problems["energy"], self.problems["limit"]
-        self.step_problem, self.speed_problem = self.problems["step"], self.problems["speed"]
-        self._interior = {}  # (problem kind, options) -> the interior point's compiled programs
-        self._structures = {}  # problem kind -> (the problem as the interior point sees it, its colouring)
-
-        self.refined_settings = gait_problem.refined(settings)
-        # the report's rollouts and verdict numbers, a batch per call: one program per grid and report_batch
-        self._checks = {grid: jax.jit(jax.vmap(functools.partial(verdict.rollout_check, biped=biped, settings=grid)))
-                        for grid in (settings, self.refined_settings)}
-        self._initial_guess = jax.jit(jax.vmap(functools.partial(
-            gait_problem.initial_guess, settings=settings, leg_length=PLANAR_SPECS[mass_class_template].leg_length)))
+        # every solver of these settings and template shares one set of programs in this process
+        key = (settings, mass_class_template)
+        if key not in _PROGRAMS:
+            _PROGRAMS[key] = _programs(settings, mass_class_template)
+        self.__dict__.update(_PROGRAMS[key])
 
     def with_options(self, **changes) -> "GaitSolver":
         """A solver sharing this one's compiled functions with other interior-point options."""
