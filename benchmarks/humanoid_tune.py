@@ -89,8 +89,7 @@ def main():
             stance, time_in_step = memory.stance, memory.time
             (data, memory), (command, applied) = prog.step(params, walk3d.NO_PUSH, (data, memory))
             roll, pitch, yaw = walk3d.attitude(data.qpos)
-            up = acc["up"] & (data.qpos[2] > walk3d.FALL_HEIGHT) & (jnp.abs(roll) < walk3d.FALL_TILT) & (
-                jnp.abs(pitch) < walk3d.FALL_TILT)
+            up = acc["up"] & walk3d.upright(data.qpos)
             soles = walker.sole_heights(legs, data)
             in_stance = time_in_step > 0.03
             late = data.time > args.seconds - WINDOW

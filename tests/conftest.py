@@ -11,8 +11,12 @@ from pathlib import Path
 #: seconds each: without the backend's optimisation passes the suite took 517 s instead of about 610 s
 #: on 2 cores (2026-12-05, the same 282 tests passing). Set before JAX starts its backend; XLA_FLAGS is
 #: part of the persistent cache's key, so these programs never stand in for `biped-jax`'s own.
-if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_backend_optimization_level=0").strip()
+#: One LLVM module per program, not split for parallel code generation: at this optimisation level the
+#: split cost more than it saved (a rollout gradient's test 38.5 s instead of 44.5 s, M1-M4's first solve in
+#: a fresh process 45 s instead of 50 s on an empty cache, 2 cores, 2026-12-06).
+for flag in ("--xla_backend_optimization_level=0", "--xla_cpu_parallel_codegen_split_count=1"):
+    if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + flag).strip()
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402

@@ -57,12 +57,22 @@ def walk_drives(motor: str = WALK_MOTOR, gearhead: str = WALK_GEARHEAD,
         reflected_inertia=drives.reflected_inertia * count)
 
 
+#: The humanoid's mass classes (``models/humanoid16_flatfoot_<mass class>.xml``).
+MASS_CLASSES = ("12kg", "18kg")
+
+
+def check_mass_class(mass_class: str) -> str:
+    """``mass_class`` if it is one of :data:`MASS_CLASSES`, else a ValueError naming it."""
+    if mass_class not in MASS_CLASSES:
+        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: {', '.join(map(repr, MASS_CLASSES))}")
+    return mass_class
+
+
 def free_base_humanoid(mass_class: str = "12kg", drives: drive_model.JointDrives | None = None) -> mujoco.MjModel:
     """The flat-foot humanoid of ``mass_class`` with its free base, time step :data:`TIMESTEP`, the
     replay's foot contact, and each actuated joint's armature the drive's reflected inertia (``drives``,
     default :func:`walk_drives`)."""
-    if mass_class not in ("12kg", "18kg"):
-        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: '12kg', '18kg'")
+    check_mass_class(mass_class)
     drives = walk_drives() if drives is None else drives
     spec = mujoco.MjSpec.from_file(str(registry.model_path(f"humanoid16_flatfoot_{mass_class}")))
     model = with_replay_contact(spec).compile()

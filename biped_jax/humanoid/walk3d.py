@@ -89,9 +89,7 @@ PARALLEL_DRIVES = {"12kg": (), "18kg": ("hip_roll",)}
 def walk_drives(mass_class: str = "12kg"):
     """The drives of the walk of ``mass_class``: the recommended one at every joint, two in parallel at
     the joints of :data:`PARALLEL_DRIVES`."""
-    if mass_class not in PARALLEL_DRIVES:
-        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: {', '.join(map(repr, PARALLEL_DRIVES))}")
-    return free_base.walk_drives(parallel=PARALLEL_DRIVES[mass_class])
+    return free_base.walk_drives(parallel=PARALLEL_DRIVES[free_base.check_mass_class(mass_class)])
 
 
 def walk_model(mass_class: str = "12kg") -> mujoco.MjModel:
@@ -243,12 +241,16 @@ def _recorder(mass_class: str):
     return advance
 
 
-def fallen(qpos: np.ndarray) -> np.ndarray:
-    """Per sample (..., 23): the pelvis below :data:`FALL_HEIGHT`, the torso tilted beyond :data:`FALL_TILT`
-    in roll or pitch, or a diverged state."""
+def upright(qpos):
+    """Per sample (..., 23), numpy or JAX: the pelvis above :data:`FALL_HEIGHT` and the torso within
+    :data:`FALL_TILT` in roll and pitch (False for a diverged state)."""
     roll, pitch, _ = attitude(qpos)
-    return ~np.all(np.isfinite(qpos), axis=-1) | (qpos[..., 2] < FALL_HEIGHT) | (np.abs(roll) > FALL_TILT) | (
-        np.abs(pitch) > FALL_TILT)
+    return (qpos[..., 2] > FALL_HEIGHT) & (abs(roll) < FALL_TILT) & (abs(pitch) < FALL_TILT)
+
+
+def fallen(qpos: np.ndarray) -> np.ndarray:
+    """Per sample (..., 23): not :func:`upright`, or a diverged state."""
+    return ~np.all(np.isfinite(qpos), axis=-1) | ~upright(qpos)
 
 
 def attitude(qpos):
@@ -387,10 +389,7 @@ def _survivor(mass_class: str, physics_steps: int):
         def body(carry, _):
             state, up = carry
             state, _ = prog.step(params, push, state)
-            data = state[0]
-            roll, pitch, _ = attitude(data.qpos)
-            up = up & (data.qpos[2] > FALL_HEIGHT) & (jnp.abs(roll) < FALL_TILT) & (jnp.abs(pitch) < FALL_TILT)
-            return (state, up), None
+            return (state, up & upright(state[0].qpos)), None
 
         ((data, memory), up), _ = jax.lax.scan(body, ((data, memory), jnp.asarray(True)), None, length=physics_steps)
         return up & jnp.all(jnp.isfinite(data.qpos)), memory.steps

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from biped_jax.humanoid import free_base
 from biped_jax.humanoid.free_base import FreeLayout
 
 #: The swing foot counts as landed when its lowest corner is this close to the ground, m.
@@ -139,9 +140,7 @@ TUNED = {"12kg": {}, "18kg": TUNED_18KG}
 
 def tuned(mass_class: str) -> WalkerParams:
     """The tuned controller of ``mass_class`` ('12kg': the defaults; '18kg': :data:`TUNED_18KG`)."""
-    if mass_class not in TUNED:
-        raise ValueError(f"unknown humanoid mass class {mass_class!r}; known: {', '.join(map(repr, TUNED))}")
-    return WalkerParams(**TUNED[mass_class])
+    return WalkerParams(**TUNED[free_base.check_mass_class(mass_class)])
 
 
 @jax.tree_util.register_dataclass
