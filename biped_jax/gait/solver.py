@@ -198,6 +198,9 @@ def _programs(settings: gait_problem.GaitSettings, mass_class_template: str) -> 
 class GaitSolver:
     """Compiles once per :class:`~biped_jax.gait.problem.GaitSettings` and solves batches of models.
 
+    Every solver of the same settings and mass-class template shares one set of programs (traced and
+    compiled on first use) for the life of the process, whatever its options.
+
     ``require_refinement=False`` reports the refinement check without letting it decide the status:
     for the test suite's deliberately coarse grids (4 knot spans), where a gait solved on its grid is
     what the tests need and the check's figures are still recorded. ``check_refinement=False`` skips
