@@ -88,7 +88,7 @@ def main():
             (data, memory), acc = carry
             stance, time_in_step = memory.stance, memory.time
             (data, memory), (command, applied) = prog.step(params, walk3d.NO_PUSH, (data, memory))
-            roll, pitch, yaw = walk3d.attitude(data.qpos)
+            yaw = walk3d.attitude(data.qpos)[2]
             up = acc["up"] & walk3d.upright(data.qpos)
             soles = walker.sole_heights(legs, data)
             in_stance = time_in_step > 0.03

@@ -495,11 +495,8 @@ def _block(problem, options, structure, params, state: State, until) -> State:
     def running(st):
         return (st.code == _RUNNING) & (st.iteration < until)
 
-    def body(st):
-        going = running(st)
-        return jax.tree.map(lambda new, old: jnp.where(going.reshape(going.shape + (1,) * (new.ndim - 1)), new, old),
-                            iterate(params, st), st)
-    return jax.lax.while_loop(lambda st: jnp.any(running(st)), body, state)
+    return jax.lax.while_loop(lambda st: jnp.any(running(st)),
+                              lambda st: _lanes_where(running(st), iterate(params, st), st), state)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -690,11 +687,13 @@ def _lanes_that_fit(compiled, structure, x0, params, multipliers, budget: float,
     return chunk
 
 
-@jax.jit
-def _refilled(mask, fresh, old):
+def _lanes_where(mask, fresh, old):
     """``old`` (a pytree of (L, ...) lane arrays) with the lanes where ``mask`` (L,) holds taken from
     ``fresh``."""
     return jax.tree.map(lambda a, b: jnp.where(mask.reshape(mask.shape + (1,) * (a.ndim - 1)), a, b), fresh, old)
+
+
+_refilled = jax.jit(_lanes_where)
 
 
 #: What :func:`_solve_pooled` reads of every lane after every block (the history and the progress).
