@@ -451,7 +451,4 @@ def _lowest_sole(prog: Program, qpos: np.ndarray) -> float:
     data = mujoco.MjData(prog.mj_model)
     data.qpos[:] = qpos
     mujoco.mj_kinematics(prog.mj_model, data)
-    hx, hy, hz = prog.legs.half_foot
-    corners = np.array([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
-    return float(min(np.min((data.geom_xpos[g] + corners @ data.geom_xmat[g].reshape(3, 3).T)[:, 2])
-                     for g in prog.legs.foot_geoms))
+    return float(np.min(walker.sole_heights(prog.legs, data)))

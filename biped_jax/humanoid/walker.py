@@ -207,10 +207,12 @@ def leg_inverse_kinematics(legs: Legs, ankle: jax.Array) -> tuple[jax.Array, jax
 
 
 def sole_heights(legs: Legs, data) -> jax.Array:
-    """Height of each foot's lowest corner above the ground (l, r), (2,), m, at MJX ``data``'s kinematics."""
+    """Height of each foot's lowest corner above the ground (l, r), (2,), m, at the kinematics of MJX
+    ``data`` or of MuJoCo C's ``MjData`` (whose rotations are rows of 9)."""
     hx, hy, hz = legs.half_foot
     corners = jnp.asarray([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
-    return jnp.stack([jnp.min((data.geom_xpos[g] + corners @ data.geom_xmat[g].T)[:, 2]) for g in legs.foot_geoms])
+    return jnp.stack([jnp.min((data.geom_xpos[g] + corners @ jnp.reshape(data.geom_xmat[g], (3, 3)).T)[:, 2])
+                      for g in legs.foot_geoms])
 
 
 def desired_speed(params: WalkerParams, time) -> jax.Array:
