@@ -24,7 +24,8 @@ from _results import save_results
 
 
 def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print) -> dict:
-    """Bisection on the peer's power limit between 0 and ``problem.power_limit`` (feasible)."""
+    """Bisection on the peer's power limit between 0 and ``problem.power_limit`` (feasible); "gait": the
+    peer's solution at the smallest feasible limit found."""
     from collocation_peer import solve
     started = time.perf_counter()
     best = solve(problem, segments)
@@ -41,7 +42,7 @@ def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print)
             low = middle
         say(f"  {segments} segments, M_W = {middle:.4f} W: {trial['status']} ({trial['wall_time_s']:.0f} s)")
     return {"limit_W": high, "infeasible_below_W": low, "cost_at_limit": best["cost"], "solves": solves,
-            "status": "bracketed", "wall_time_s": time.perf_counter() - started}
+            "status": "bracketed", "wall_time_s": time.perf_counter() - started, "gait": best}
 
 
 def main():
@@ -68,7 +69,7 @@ def main():
                                            say=lambda m: print(m, flush=True)) for n in meshes}
         mine = ours[model.name]["min_power_limit_W"]
         row = {"model": model.name, "ours_W": mine, "ours_status": ours[model.name]["min_power_status"],
-               "peer": {str(n): p for n, p in peer.items()}}
+               "peer": {str(n): {k: v for k, v in p.items() if k != "gait"} for n, p in peer.items()}}
         for n, p in peer.items():
             row[f"ours_over_peer_{n}"] = None if mine is None or p["limit_W"] is None else mine / p["limit_W"]
         rows.append(row)

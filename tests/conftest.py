@@ -5,7 +5,6 @@ LLVM optimisation passes (below)."""
 import dataclasses
 import os
 import pickle
-from importlib.metadata import version
 from pathlib import Path
 
 #: On an empty cache the suite's time is mostly XLA compiling its programs, which then run for a few
@@ -15,13 +14,9 @@ from pathlib import Path
 #: One LLVM module per program, not split for parallel code generation: at this optimisation level the
 #: split cost more than it saved (a rollout gradient's test 38.5 s instead of 44.5 s, M1-M4's first solve in
 #: a fresh process 45 s instead of 50 s on an empty cache, 2 cores, 2026-12-06).
-#: XLA's older elemental emitters instead of its fusion emitters: at this level they compile the interior
-#: point's iteration in 12.8 s instead of 17.5 s and M1-M4's first solve took 30 s instead of 37 s, the
-#: iterations as fast (2 cores, empty cache, jaxlib 0.10.2, 2026-12-06; at the default level they compile
-#: slower). Only on the jaxlib releases it was measured on: XLA stops at a flag it does not know.
+#: (XLA's elemental emitters instead of its fusion emitters, which compile the interior point's iteration
+#: in 12.8 s instead of 17.5 s at this level, are set by the package itself on import: biped_jax/__init__.py.)
 _FLAGS = ["--xla_backend_optimization_level=0", "--xla_cpu_parallel_codegen_split_count=1"]
-if version("jaxlib").startswith("0.10."):
-    _FLAGS.append("--xla_cpu_use_fusion_emitters=false")
 for flag in _FLAGS:
     if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
         os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + flag).strip()
