@@ -241,14 +241,20 @@ def test_the_compilation_cache_can_be_moved(tmp_path):
     assert entries[0] and entries[0] == entries[1]
 
 
-def test_importing_the_package_turns_off_xlas_multi_threaded_eigen_pool_unless_the_user_chose():
-    """The pool deadlocked a batched solve (biped_jax/__init__.py); the flag must be in XLA_FLAGS
-    before JAX starts its backend, and a user's own choice of it stays."""
+def test_importing_the_package_sets_the_xla_flags_that_avoid_its_hangs_unless_the_user_chose():
+    """XLA's multi-threaded Eigen pool and (on jaxlib 0.10) its fusion emitters hung batched solves
+    (biped_jax/__init__.py); the flags must be in XLA_FLAGS before JAX starts its backend, and a user's
+    own choice of either stays."""
+    from importlib.metadata import version
+
     def flags(value):
         env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
         env |= {} if value is None else {"XLA_FLAGS": value}
         return subprocess.run([sys.executable, "-c", "import os, biped_jax; print(os.environ['XLA_FLAGS'])"],
                               env=env, capture_output=True, text=True, check=True).stdout.strip()
-    assert flags(None) == "--xla_cpu_multi_thread_eigen=false"
-    assert flags("--xla_dump_to=/tmp/x") == "--xla_dump_to=/tmp/x --xla_cpu_multi_thread_eigen=false"
-    assert flags("--xla_cpu_multi_thread_eigen=true") == "--xla_cpu_multi_thread_eigen=true"
+    emitters = " --xla_cpu_use_fusion_emitters=false" if version("jaxlib").startswith("0.10.") else ""
+    assert flags(None) == "--xla_cpu_multi_thread_eigen=false" + emitters
+    assert flags("--xla_dump_to=/tmp/x") == "--xla_dump_to=/tmp/x --xla_cpu_multi_thread_eigen=false" + emitters
+    assert flags("--xla_cpu_multi_thread_eigen=true") == "--xla_cpu_multi_thread_eigen=true" + emitters
+    assert flags("--xla_cpu_use_fusion_emitters=true") == ("--xla_cpu_use_fusion_emitters=true "
+                                                           "--xla_cpu_multi_thread_eigen=false")
