@@ -22,20 +22,25 @@ import os
 #: twice in ``block_until_ready`` with every XLA thread idle (2-core CPU, jax 0.10.2, 2026-12-05), and
 #: finished in 96 s with the pool off; a batch in 16 lanes took 76.9 s with it off, 75.9 s on. Set on
 #: import, before JAX starts its backend (it reads XLA_FLAGS then); a value the user set is kept.
-if "xla_cpu_multi_thread_eigen" not in os.environ.get("XLA_FLAGS", ""):
-    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " --xla_cpu_multi_thread_eigen=false").strip()
+def default_xla_flag(flag: str) -> None:
+    """Appends ``flag`` ("--name=value") to XLA_FLAGS unless XLA_FLAGS already names it (the user's choice
+    stays); effective only before JAX starts its backend, which reads XLA_FLAGS then."""
+    if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
+        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + flag).strip()
+
+
+default_xla_flag("--xla_cpu_multi_thread_eigen=false")
 #: The same kind of hang with the pool off: the gait solver's iterations (8 problems, 48 knot spans, from
 #: starts far off the optimum) stopped with every XLA thread idle in 5 runs of 5 with XLA's fusion emitters
 #: (the default; fresh compilations and cached ones, sometimes after a few blocks of iterations) and ran to
 #: the end in 2 of 2 with its elemental emitters (2-core CPU, jaxlib 0.10.2, 2026-12-06). Only on the jaxlib
 #: releases it was measured on (XLA stops at a flag it does not know); a value the user set is kept.
-if "xla_cpu_use_fusion_emitters" not in os.environ.get("XLA_FLAGS", ""):
-    try:
-        _JAXLIB = importlib.metadata.version("jaxlib")
-    except importlib.metadata.PackageNotFoundError:
-        _JAXLIB = ""
-    if _JAXLIB.startswith("0.10."):
-        os.environ["XLA_FLAGS"] = (os.environ["XLA_FLAGS"] + " --xla_cpu_use_fusion_emitters=false").strip()
+try:
+    _JAXLIB = importlib.metadata.version("jaxlib")
+except importlib.metadata.PackageNotFoundError:
+    _JAXLIB = ""
+if _JAXLIB.startswith("0.10."):
+    default_xla_flag("--xla_cpu_use_fusion_emitters=false")
 
 _MODULES = {
     "robots.design": ("Design", "apply_design", "check_design", "design_layout"),

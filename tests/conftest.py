@@ -16,10 +16,10 @@ from pathlib import Path
 #: a fresh process 45 s instead of 50 s on an empty cache, 2 cores, 2026-12-06).
 #: (XLA's elemental emitters instead of its fusion emitters, which compile the interior point's iteration
 #: in 12.8 s instead of 17.5 s at this level, are set by the package itself on import: biped_jax/__init__.py.)
-_FLAGS = ["--xla_backend_optimization_level=0", "--xla_cpu_parallel_codegen_split_count=1"]
-for flag in _FLAGS:
-    if flag.split("=")[0] not in os.environ.get("XLA_FLAGS", ""):
-        os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + flag).strip()
+from biped_jax import default_xla_flag  # noqa: E402  (importing biped_jax does not start JAX's backend)
+
+for flag in ("--xla_backend_optimization_level=0", "--xla_cpu_parallel_codegen_split_count=1"):
+    default_xla_flag(flag)
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
