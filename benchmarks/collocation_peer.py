@@ -110,8 +110,12 @@ def _model(spec: PlanarBipedSpec):
 
 
 def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, print_level: int = 0,
-          minimise_power_limit: bool = False) -> dict:
+          minimise_power_limit: bool = False, power_points: int = 0) -> dict:
     """Hermite-Simpson transcription with ``segments`` segments; returns J, status, the solution.
+
+    ``power_points``: the power limit held also at this many evenly spaced points inside every interval
+    between two nodes, on the interpolants of :func:`power_between_nodes` (the rates' cubic Hermite, the
+    torques' quadratic): a limit held between the nodes, as a motor must, not at the nodes alone.
 
     ``minimise_power_limit``: the power limit becomes a variable (started at ``problem.power_limit``)
     and the objective; the result's "power_limit" is the smallest limit with a gait of this mesh,
@@ -146,6 +150,18 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
             opti.subject_to(foot[0] == problem.step_length)
             opti.subject_to(foot[1] == 0)
             opti.subject_to(foot_v[1] <= 0)
+    for a in range(nodes - 1):
+        segment = a - a % 2  # the segment's first knot: the torques' quadratic runs through its three nodes
+        for j in range(1, power_points + 1):
+            tau = j / (power_points + 1)  # within node interval (a, a + 1), of length h / 2
+            h00, h10, h01, h11 = 2 * tau**3 - 3 * tau**2 + 1, tau**3 - 2 * tau**2 + tau, -2 * tau**3 + 3 * tau**2, \
+                tau**3 - tau**2
+            rates = RELATIVE_JOINTS @ (h00 * phid[:, a] + h10 * h / 2 * f[a][5:] + h01 * phid[:, a + 1]
+                                       + h11 * h / 2 * f[a + 1][5:])
+            sigma = 0.5 * (a - segment + tau)  # position in the segment, 0 to 1
+            torque = (u[:, segment] * (2 * sigma - 1) * (sigma - 1) + u[:, segment + 1] * 4 * sigma * (1 - sigma)
+                      + u[:, segment + 2] * sigma * (2 * sigma - 1))
+            opti.subject_to(opti.bounded(-limit, rates * torque, limit))
     x = ca.vertcat(phi, phid)
     cost = 0
     for s in range(segments):

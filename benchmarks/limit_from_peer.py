@@ -36,6 +36,9 @@ def main():
     parser.add_argument("--spans", type=int, default=48, help="our knot spans (and shooting segments)")
     parser.add_argument("--factors", type=float, nargs="+", default=[1.25, 2.5],
                         help="the limits, over the peer's, at which our energy problem is first solved")
+    parser.add_argument("--power-points", type=int, default=0,
+                        help="the peer's limit held also at this many points between every two of its nodes "
+                             "(collocation_peer.solve's power_points; 0: at its nodes only)")
     parser.add_argument("--peer-gaits", type=Path, default=None,
                         help="a folder keeping the peer's bisections (read where present, else written)")
     parser.add_argument("--name", default="limit_from_peer")
@@ -61,12 +64,14 @@ def main():
     rows, starts, models = [], [], []
     for model, gait_model in zip(chosen, study.paper_gait_models(chosen)):
         problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
-        saved = args.peer_gaits and args.peer_gaits / f"{model.name}_{args.segments}.pickle"
+        saved = args.peer_gaits and args.peer_gaits / (f"{model.name}_{args.segments}"
+                                                        + (f"_p{args.power_points}" if args.power_points else "")
+                                                        + ".pickle")
         if saved and saved.is_file():
             peer = pickle.loads(saved.read_bytes())
         else:
             peer = smallest_feasible_limit(problem, args.segments, args.tolerance,
-                                           say=lambda m: print(m, flush=True))
+                                           say=lambda m: print(m, flush=True), power_points=args.power_points)
             if saved:
                 saved.parent.mkdir(parents=True, exist_ok=True)
                 saved.write_bytes(pickle.dumps(peer))
@@ -118,6 +123,7 @@ def main():
               f"grid (refinement {'passed' if row['refinement_passed'] else 'failed: ' + str(row['refinement_failed'])}"
               f"), {row['ours_over_peer']:.3f} x the peer's", flush=True)
     save_results(args.name, {"segments": args.segments, "tolerance": args.tolerance, "spans": args.spans,
+                             "power_points": args.power_points,
                              "factors": factors,
                              "our_wall_time_s": wall}, rows, args.out)
 

@@ -23,18 +23,18 @@ from pathlib import Path
 from _results import save_results
 
 
-def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print) -> dict:
+def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print, power_points: int = 0) -> dict:
     """Bisection on the peer's power limit between 0 and ``problem.power_limit`` (feasible); "gait": the
     peer's solution at the smallest feasible limit found."""
     from collocation_peer import solve
     started = time.perf_counter()
-    best = solve(problem, segments)
+    best = solve(problem, segments, power_points=power_points)
     if best["status"] != "converged":
         return {"limit_W": None, "status": f"infeasible at its own limit ({best['status']})", "solves": 1}
     low, high, solves = 0.0, problem.power_limit, 1
     while high - low > tolerance * high:
         middle = 0.5 * (low + high)
-        trial = solve(dataclasses.replace(problem, power_limit=middle), segments, guess=best)
+        trial = solve(dataclasses.replace(problem, power_limit=middle), segments, guess=best, power_points=power_points)
         solves += 1
         if trial["status"] == "converged":
             high, best = middle, trial
@@ -51,6 +51,10 @@ def main():
     parser.add_argument("--segments", type=int, default=40, help="the peer's Hermite-Simpson segments")
     parser.add_argument("--tolerance", type=float, default=0.01, help="the bracket's relative width")
     parser.add_argument("--one-mesh", action="store_true", help="only --segments (not also twice as many)")
+    parser.add_argument("--power-points", type=int, default=0,
+                        help="the limit held also at this many points between every two of the peer's nodes "
+                             "(collocation_peer.solve's power_points; 0: at its nodes only)")
+    parser.add_argument("--models", nargs="+", default=None, help="some of M1-M4 (default: all four)")
     parser.add_argument("--name", default="peer_smallest_limit")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
@@ -63,10 +67,16 @@ def main():
     ours = {m["model"]: m for m in json.loads(args.ours.read_text())["models"]}
     rows = []
     for model in study.PAPER_MODELS:
+        if args.models and model.name not in args.models:
+            continue
         problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
         meshes = (args.segments,) if args.one_mesh else (args.segments, 2 * args.segments)
-        peer = {n: smallest_feasible_limit(problem, n, args.tolerance,
-                                           say=lambda m: print(m, flush=True)) for n in meshes}
+        peer = {n: smallest_feasible_limit(problem, n, args.tolerance, say=lambda m: print(m, flush=True),
+                                           power_points=args.power_points) for n in meshes}
+        from collocation_peer import power_between_nodes
+        for p in peer.values():  # what the peer's gait at its limit asks of a motor between its nodes
+            if p.get("gait") is not None:
+                p["between_nodes_W"] = power_between_nodes(problem, p["gait"])
         mine = ours[model.name]["min_power_limit_W"]
         row = {"model": model.name, "ours_W": mine, "ours_status": ours[model.name]["min_power_status"],
                "peer": {str(n): {k: v for k, v in p.items() if k != "gait"} for n, p in peer.items()}}
@@ -74,8 +84,10 @@ def main():
             row[f"ours_over_peer_{n}"] = None if mine is None or p["limit_W"] is None else mine / p["limit_W"]
         rows.append(row)
         print(f"{model.name}: ours {mine} W; peer " + ", ".join(
-            f"{n} segments {p['limit_W']} W ({p['solves']} solves)" for n, p in peer.items()), flush=True)
-        save_results(args.name, {"segments": args.segments, "tolerance": args.tolerance, "ours": str(args.ours)},
+            f"{n} segments {p['limit_W']} W ({p['solves']} solves; {p.get('between_nodes_W', float('nan')):.4f} W "
+            f"between its nodes)" for n, p in peer.items()), flush=True)
+        save_results(args.name, {"segments": args.segments, "tolerance": args.tolerance, "ours": str(args.ours),
+                                 "power_points": args.power_points},
                      rows, args.out)  # after every model: a long run keeps what it found
 
 
