@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import pickle
 import time
 from pathlib import Path
 
@@ -50,7 +49,7 @@ def main():
     import jax.numpy as jnp
     from collocation_peer import PeerProblem
     from peer_basin import fitted_start
-    from peer_smallest_limit import smallest_feasible_limit
+    from peer_smallest_limit import kept_bisection
 
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver
@@ -64,17 +63,8 @@ def main():
     rows, starts, models = [], [], []
     for model, gait_model in zip(chosen, study.paper_gait_models(chosen)):
         problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
-        saved = args.peer_gaits and args.peer_gaits / (f"{model.name}_{args.segments}"
-                                                        + (f"_p{args.power_points}" if args.power_points else "")
-                                                        + ".pickle")
-        if saved and saved.is_file():
-            peer = pickle.loads(saved.read_bytes())
-        else:
-            peer = smallest_feasible_limit(problem, args.segments, args.tolerance,
-                                           say=lambda m: print(m, flush=True), power_points=args.power_points)
-            if saved:
-                saved.parent.mkdir(parents=True, exist_ok=True)
-                saved.write_bytes(pickle.dumps(peer))
+        peer = kept_bisection(problem, model.name, args.segments, args.tolerance, args.power_points,
+                              args.peer_gaits, say=lambda m: print(m, flush=True))
         print(f"{model.name}: the peer's smallest feasible limit {peer['limit_W']} W", flush=True)
         rows.append({"model": model.name, "peer": {k: v for k, v in peer.items() if k != "gait"}})
         starts.append(fitted_start(peer["gait"], settings))

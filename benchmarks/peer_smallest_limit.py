@@ -4,12 +4,18 @@ For each model the peer (``collocation_peer.solve``, CasADi + IPOPT, Hermite-Sim
 problem at a power limit M_W: a limit is feasible when IPOPT converges. Bisection between an infeasible
 limit and the model's own (feasible) limit, warm-started from the last feasible gait, until the bracket
 is within ``--tolerance`` of its upper end; reported: that upper end (the smallest feasible limit found,
-to the tolerance), on ``--segments`` and on twice as many segments (the peer's limit holds only at its
-knots and midpoints, so its smallest limit moves with the mesh). Ours: the smallest limits of a
-``biped-jax reproduce`` results file (``--ours OUT/results.json``: the interior point's continuation,
-kept on the 4x finer grid), and the ratio ours / peer. Needs the ``bench`` extra (casadi).
+to the tolerance), on ``--segments`` and on twice as many segments, and what the gait found asks of a
+motor between the peer's nodes (``collocation_peer.power_between_nodes``). Held at its nodes alone the
+peer's limit is not a motor's: its gaits at the smallest limits chatter between the nodes (measured:
+37-100 W between nodes of 40 segments at limits of 0.7-2.6 W); ``--power-points K`` holds it also at K
+points between every two nodes, as our refinement grid holds ours. ``--methods minimise``: the peer's own
+epigraph form (min M_W over gait and limit) from its energy optimum, as our continuation starts from
+ours. Ours: the smallest limits of a ``biped-jax reproduce`` results file (``--ours OUT/results.json``:
+the interior point's continuation, kept on the 4x finer grid), and the ratio ours / peer. Needs the
+``bench`` extra (casadi).
 
-    python benchmarks/peer_smallest_limit.py --ours out/results.json
+    python benchmarks/peer_smallest_limit.py --ours out/results.json --one-mesh --power-points 1 \
+        --methods bisection minimise
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import pickle
 import time
 from pathlib import Path
 
@@ -45,6 +52,33 @@ def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print,
             "status": "bracketed", "wall_time_s": time.perf_counter() - started, "gait": best}
 
 
+def minimised_limit(problem, segments: int, power_points: int = 0) -> dict:
+    """The peer's own epigraph form: its energy optimum at the model's limit, then min M_W over gait and
+    limit from there (``collocation_peer.solve(minimise_power_limit=True)``), as our continuation starts
+    from our optimum; "limit_W" None where IPOPT did not converge."""
+    from collocation_peer import solve
+    started = time.perf_counter()
+    start = solve(problem, segments, power_points=power_points)
+    found = solve(problem, segments, guess=start, minimise_power_limit=True, power_points=power_points)
+    return {"limit_W": found["power_limit"] if found["status"] == "converged" else None, "status": found["status"],
+            "cost_at_limit": found["cost"], "iterations": found["iterations"],
+            "wall_time_s": time.perf_counter() - started, "gait": found}
+
+
+def kept_bisection(problem, name: str, segments: int, tolerance: float, power_points: int = 0,
+                   folder: Path | None = None, say=print) -> dict:
+    """:func:`smallest_feasible_limit`, read from ``folder`` where an earlier run kept it (a pickle per
+    model, mesh and ``power_points``), else run and kept there (``folder`` None: run, not kept)."""
+    saved = folder and folder / f"{name}_{segments}{f'_p{power_points}' if power_points else ''}.pickle"
+    if saved and saved.is_file():
+        return pickle.loads(saved.read_bytes())
+    found = smallest_feasible_limit(problem, segments, tolerance, say=say, power_points=power_points)
+    if saved:
+        saved.parent.mkdir(parents=True, exist_ok=True)
+        saved.write_bytes(pickle.dumps(found))
+    return found
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ours", type=Path, required=True, help="results.json of `biped-jax reproduce`")
@@ -55,6 +89,11 @@ def main():
                         help="the limit held also at this many points between every two of the peer's nodes "
                              "(collocation_peer.solve's power_points; 0: at its nodes only)")
     parser.add_argument("--models", nargs="+", default=None, help="some of M1-M4 (default: all four)")
+    parser.add_argument("--peer-gaits", type=Path, default=None,
+                        help="a folder keeping the peer's bisections (read where present, else written)")
+    parser.add_argument("--methods", nargs="+", default=["bisection"], choices=("bisection", "minimise"),
+                        help="the peer's bisection on the limit (smallest_feasible_limit) and/or its own "
+                             "minimisation of the limit from its energy optimum (minimised_limit)")
     parser.add_argument("--name", default="peer_smallest_limit")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
@@ -71,21 +110,28 @@ def main():
             continue
         problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
         meshes = (args.segments,) if args.one_mesh else (args.segments, 2 * args.segments)
-        peer = {n: smallest_feasible_limit(problem, n, args.tolerance, say=lambda m: print(m, flush=True),
-                                           power_points=args.power_points) for n in meshes}
+        peer = {n: kept_bisection(problem, model.name, n, args.tolerance, args.power_points, args.peer_gaits,
+                                  say=lambda m: print(m, flush=True)) for n in meshes} \
+            if "bisection" in args.methods else {}
+        minimised = {n: minimised_limit(problem, n, args.power_points) for n in meshes} \
+            if "minimise" in args.methods else {}
         from collocation_peer import power_between_nodes
-        for p in peer.values():  # what the peer's gait at its limit asks of a motor between its nodes
+        for p in (*peer.values(), *minimised.values()):  # what the peer's gait asks of a motor between its nodes
             if p.get("gait") is not None:
                 p["between_nodes_W"] = power_between_nodes(problem, p["gait"])
         mine = ours[model.name]["min_power_limit_W"]
         row = {"model": model.name, "ours_W": mine, "ours_status": ours[model.name]["min_power_status"],
-               "peer": {str(n): {k: v for k, v in p.items() if k != "gait"} for n, p in peer.items()}}
-        for n, p in peer.items():
-            row[f"ours_over_peer_{n}"] = None if mine is None or p["limit_W"] is None else mine / p["limit_W"]
+               "peer": {str(n): {k: v for k, v in p.items() if k != "gait"} for n, p in peer.items()},
+               "peer_minimised": {str(n): {k: v for k, v in p.items() if k != "gait"} for n, p in minimised.items()}}
+        for label, found in (("peer", peer), ("peer_minimised", minimised)):
+            for n, p in found.items():
+                row[f"ours_over_{label}_{n}"] = None if mine is None or p["limit_W"] is None else mine / p["limit_W"]
         rows.append(row)
         print(f"{model.name}: ours {mine} W; peer " + ", ".join(
             f"{n} segments {p['limit_W']} W ({p['solves']} solves; {p.get('between_nodes_W', float('nan')):.4f} W "
-            f"between its nodes)" for n, p in peer.items()), flush=True)
+            f"between its nodes)" for n, p in peer.items()) + "".join(
+            f"; minimised on {n} segments: {p['limit_W']} W ({p['status']}, {p['between_nodes_W']:.4f} W between "
+            f"its nodes)" for n, p in minimised.items()), flush=True)
         save_results(args.name, {"segments": args.segments, "tolerance": args.tolerance, "ours": str(args.ours),
                                  "power_points": args.power_points},
                      rows, args.out)  # after every model: a long run keeps what it found
