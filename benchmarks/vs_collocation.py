@@ -15,6 +15,12 @@ compile included; with ``--warm`` solved again, warm). Needs the ``bench`` extra
 
     python benchmarks/vs_collocation.py                 # all six cases
     python benchmarks/vs_collocation.py --cases M2      # one
+    python benchmarks/vs_collocation.py --smallest-limit 7   # and the smallest power limits
+
+With ``--smallest-limit K`` it also compares the smallest power limits of the paper's models: ours (the
+study's continuation, kept on the 4x grid) against the peer's own minimisation of the limit with the
+limit held at K points between every two of its nodes as well (held at its nodes alone, the peer's gaits
+ask tens of W between them; see ``peer_smallest_limit.py``).
 """
 
 from __future__ import annotations
@@ -51,6 +57,10 @@ def main():
     parser.add_argument("--shooting-segments", type=int, default=None,
                         help="our shooting segments (default: the study's)")
     parser.add_argument("--warm", action="store_true", help="solve ours a second time for the warm wall time")
+    parser.add_argument("--smallest-limit", type=int, default=None, metavar="K",
+                        help="also the smallest power limits of the paper's models: ours (the study's continuation "
+                             "from ours' optima, kept on the 4x grid) against the peer's own minimisation with its "
+                             "limit held at K points between every two nodes (peer_smallest_limit.minimised_limit)")
     parser.add_argument("--name", default="vs_collocation")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     args = parser.parse_args()
@@ -124,9 +134,46 @@ def main():
               flush=True)
     warm = "not measured (--warm)" if ours_warm is None else f"{ours_warm:.0f} s warm"
     print(f"ours: {len(cases)} cases, {ours_time:.0f} s cold (compile included), {warm}")
+    if args.smallest_limit is not None:
+        rows += smallest_limits(solvers, [s for (m, p), s in zip(cases, ours) if p == m.power_limit],
+                                args.segments, args.smallest_limit)
     save_results(args.name, {"segments": args.segments, "spans": settings.spans, "substeps": settings.substeps,
-                             "shooting_segments": settings.segments, "solver": "interior point"},
+                             "shooting_segments": settings.segments, "solver": "interior point",
+                             "smallest_limit_power_points": args.smallest_limit},
                  rows, args.out)
+
+
+def smallest_limits(solvers, solutions, segments: int, power_points: int) -> list[dict]:
+    """Per paper model: our smallest power limit (``paper.minimal_power_limits`` from ``solutions``, the
+    models' optima, as the study runs it) against the peer's own minimisation with its limit held at
+    ``power_points`` points between every two of its nodes, and the largest power each gait asks anywhere
+    (the peer's on its interpolants; ours is kept on the 4x grid)."""
+    from collocation_peer import PeerProblem, power_between_nodes
+    from peer_smallest_limit import minimised_limit
+
+    from biped_jax.robots.specs import PLANAR_SPECS
+    from biped_jax.studies import paper as study
+    models = {m.name: m for m in study.PAPER_MODELS}
+    chosen = [models[s.name] for s in solutions]
+    started = time.perf_counter()
+    minima = study.minimal_power_limits(solvers.fine, solutions, study.paper_gait_models(chosen),
+                                        coarse=solvers.coarse_power)
+    ours_time = time.perf_counter() - started
+    rows = []
+    for model, mine in zip(chosen, minima):
+        problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
+        peer = minimised_limit(problem, segments, power_points)
+        peer["between_nodes_W"] = power_between_nodes(problem, peer.pop("gait"))
+        ours_w = mine["min_power_limit_W"]
+        ratio = None if ours_w is None or peer["limit_W"] is None else ours_w / peer["limit_W"]
+        rows.append({"case": f"{model.name} smallest limit", "ours_W": ours_w, "ours_status": mine["min_power_status"],
+                     "ours_solve_grid_W": mine["min_power_solve_grid_W"], "ours_s": ours_time,
+                     "peer": peer, "peer_power_points": power_points, "ours_over_peer": ratio})
+        print(f"{model.name} smallest limit: ours {ours_w} W ({mine['min_power_status']}, kept on the 4x grid); "
+              f"peer {peer['limit_W']} W ({peer['status']}, its limit held at {power_points} points between its "
+              f"nodes; {peer['between_nodes_W']:.4f} W anywhere)"
+              + ("" if ratio is None else f"; ours / peer {ratio:.4f}"), flush=True)
+    return rows
 
 
 if __name__ == "__main__":
