@@ -151,16 +151,9 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
             opti.subject_to(foot[1] == 0)
             opti.subject_to(foot_v[1] <= 0)
     for a in range(nodes - 1):
-        segment = a - a % 2  # the segment's first knot: the torques' quadratic runs through its three nodes
         for j in range(1, power_points + 1):
-            tau = j / (power_points + 1)  # within node interval (a, a + 1), of length h / 2
-            h00, h10, h01, h11 = 2 * tau**3 - 3 * tau**2 + 1, tau**3 - 2 * tau**2 + tau, -2 * tau**3 + 3 * tau**2, \
-                tau**3 - tau**2
-            rates = RELATIVE_JOINTS @ (h00 * phid[:, a] + h10 * h / 2 * f[a][5:] + h01 * phid[:, a + 1]
-                                       + h11 * h / 2 * f[a + 1][5:])
-            sigma = 0.5 * (a - segment + tau)  # position in the segment, 0 to 1
-            torque = (u[:, segment] * (2 * sigma - 1) * (sigma - 1) + u[:, segment + 1] * 4 * sigma * (1 - sigma)
-                      + u[:, segment + 2] * sigma * (2 * sigma - 1))
+            rates, torque = interpolated(a, j / (power_points + 1), lambda k: RELATIVE_JOINTS @ phid[:, k],
+                                         lambda k: RELATIVE_JOINTS @ f[k][5:], lambda k: u[:, k], h / 2)
             opti.subject_to(opti.bounded(-limit, rates * torque, limit))
     x = ca.vertcat(phi, phid)
     cost = 0
@@ -211,25 +204,46 @@ def solve(problem: PeerProblem, segments: int = 60, guess: dict | None = None, p
             "t": np.linspace(0, t_f, nodes)}
 
 
+def hermite_weights(tau):
+    """The cubic Hermite basis at ``tau`` in [0, 1] of an interval: the weights of its start's value, start's
+    slope times the width, end's value, end's slope times the width."""
+    return 2 * tau**3 - 3 * tau**2 + 1, tau**3 - 2 * tau**2 + tau, -2 * tau**3 + 3 * tau**2, tau**3 - tau**2
+
+
+def quadratic_weights(sigma):
+    """The weights of the quadratic through a segment's first knot, midpoint and last knot at ``sigma`` in
+    [0, 1] of the segment (Lagrange basis)."""
+    return (2 * sigma - 1) * (sigma - 1), 4 * sigma * (1 - sigma), sigma * (2 * sigma - 1)
+
+
+def interpolated(a, tau, rate, slope, torque, width):
+    """The joint rates and torques at ``tau`` in [0, 1] of the interval between nodes ``a`` and ``a + 1``
+    (``width`` s apart) on the transcription's own interpolants: the rates' cubic Hermite (their slopes the
+    dynamics' accelerations at the nodes), the torques' quadratic through the segment's three nodes.
+    ``rate``, ``slope``, ``torque``: node index -> that node's values (CasADi or numpy alike)."""
+    h00, h10, h01, h11 = hermite_weights(tau)
+    rates = h00 * rate(a) + h10 * width * slope(a) + h01 * rate(a + 1) + h11 * width * slope(a + 1)
+    segment = a - a % 2  # the segment's first knot
+    w0, w1, w2 = quadratic_weights(0.5 * (a - segment + tau))
+    return rates, w0 * torque(segment) + w1 * torque(segment + 1) + w2 * torque(segment + 2)
+
+
 def power_between_nodes(problem: PeerProblem, result: dict, samples: int = 20) -> float:
-    """The largest joint power |(S phid) u| of a solve's gait between its nodes, W: the rates' cubic Hermite
-    interpolant (their slopes the dynamics' accelerations at the nodes) and the torques' quadratic through
-    each segment's knots and midpoint (the transcription's own interpolants), ``samples`` points per node
-    interval. The limit holds at the nodes only; this is what the gait asks of a motor in between."""
-    from scipy.interpolate import CubicHermiteSpline
+    """The largest joint power |(S phid) u| of a solve's gait between its nodes, W, on :func:`interpolated`
+    (the transcription's own interpolants), ``samples`` points per node interval. The limit holds at the
+    nodes (and at ``power_points`` between them); this is what the gait asks of a motor anywhere."""
     outputs = _model(problem.spec)[0]
     phi, phid, u, t = result["phi"], result["phid"], result["u"], result["t"]
     phidd = np.stack([np.asarray(outputs(phi[:, k], phid[:, k], u[:, k])[0]).ravel() for k in range(phi.shape[1])],
                      axis=1)
-    dense = np.linspace(0.0, t[-1], samples * (len(t) - 1) + 1)
-    rates = CubicHermiteSpline(t, (RELATIVE_JOINTS @ phid).T, (RELATIVE_JOINTS @ phidd).T)(dense).T
-    torques = np.zeros((4, len(dense)))
-    for a in range(0, len(t) - 2, 2):
-        inside = (dense >= t[a]) & (dense <= t[a + 2])
-        tau = (dense[inside] - t[a]) / (t[a + 2] - t[a])
-        torques[:, inside] = (u[:, a, None] * (2 * tau - 1) * (tau - 1) + u[:, a + 1, None] * 4 * tau * (1 - tau)
-                              + u[:, a + 2, None] * tau * (2 * tau - 1))
-    return float(np.abs(rates * torques).max())
+    rates, slopes = RELATIVE_JOINTS @ phid, RELATIVE_JOINTS @ phidd
+    tau = np.arange(samples) / samples
+    largest = float(np.abs(rates[:, -1] * u[:, -1]).max())
+    for a in range(len(t) - 1):
+        r, torques = interpolated(a, tau, lambda k: rates[:, k, None], lambda k: slopes[:, k, None],
+                                  lambda k: u[:, k, None], t[a + 1] - t[a])
+        largest = max(largest, float(np.abs(r * torques).max()))
+    return largest
 
 
 def main():

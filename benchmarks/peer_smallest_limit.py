@@ -32,8 +32,9 @@ from _results import save_results
 
 def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print, power_points: int = 0) -> dict:
     """Bisection on the peer's power limit between 0 and ``problem.power_limit`` (feasible); "gait": the
-    peer's solution at the smallest feasible limit found."""
-    from collocation_peer import solve
+    peer's solution at the smallest feasible limit found, "between_nodes_W": the largest power it asks
+    anywhere (``collocation_peer.power_between_nodes``)."""
+    from collocation_peer import power_between_nodes, solve
     started = time.perf_counter()
     best = solve(problem, segments, power_points=power_points)
     if best["status"] != "converged":
@@ -49,20 +50,23 @@ def smallest_feasible_limit(problem, segments: int, tolerance: float, say=print,
             low = middle
         say(f"  {segments} segments, M_W = {middle:.4f} W: {trial['status']} ({trial['wall_time_s']:.0f} s)")
     return {"limit_W": high, "infeasible_below_W": low, "cost_at_limit": best["cost"], "solves": solves,
-            "status": "bracketed", "wall_time_s": time.perf_counter() - started, "gait": best}
+            "status": "bracketed", "wall_time_s": time.perf_counter() - started, "gait": best,
+            "between_nodes_W": power_between_nodes(problem, best)}
 
 
 def minimised_limit(problem, segments: int, power_points: int = 0) -> dict:
     """The peer's own epigraph form: its energy optimum at the model's limit, then min M_W over gait and
     limit from there (``collocation_peer.solve(minimise_power_limit=True)``), as our continuation starts
-    from our optimum; "limit_W" None where IPOPT did not converge."""
-    from collocation_peer import solve
+    from our optimum; "limit_W" None where IPOPT did not converge; "between_nodes_W" as in
+    :func:`smallest_feasible_limit`."""
+    from collocation_peer import power_between_nodes, solve
     started = time.perf_counter()
     start = solve(problem, segments, power_points=power_points)
     found = solve(problem, segments, guess=start, minimise_power_limit=True, power_points=power_points)
     return {"limit_W": found["power_limit"] if found["status"] == "converged" else None, "status": found["status"],
             "cost_at_limit": found["cost"], "iterations": found["iterations"],
-            "wall_time_s": time.perf_counter() - started, "gait": found}
+            "wall_time_s": time.perf_counter() - started, "gait": found,
+            "between_nodes_W": power_between_nodes(problem, found)}
 
 
 def kept_bisection(problem, name: str, segments: int, tolerance: float, power_points: int = 0,
@@ -71,7 +75,11 @@ def kept_bisection(problem, name: str, segments: int, tolerance: float, power_po
     model, mesh and ``power_points``), else run and kept there (``folder`` None: run, not kept)."""
     saved = folder and folder / f"{name}_{segments}{f'_p{power_points}' if power_points else ''}.pickle"
     if saved and saved.is_file():
-        return pickle.loads(saved.read_bytes())
+        found = pickle.loads(saved.read_bytes())
+        if "gait" in found and "between_nodes_W" not in found:  # kept before bisections reported it
+            from collocation_peer import power_between_nodes
+            found["between_nodes_W"] = power_between_nodes(problem, found["gait"])
+        return found
     found = smallest_feasible_limit(problem, segments, tolerance, say=say, power_points=power_points)
     if saved:
         saved.parent.mkdir(parents=True, exist_ok=True)
@@ -115,10 +123,6 @@ def main():
             if "bisection" in args.methods else {}
         minimised = {n: minimised_limit(problem, n, args.power_points) for n in meshes} \
             if "minimise" in args.methods else {}
-        from collocation_peer import power_between_nodes
-        for p in (*peer.values(), *minimised.values()):  # what the peer's gait asks of a motor between its nodes
-            if p.get("gait") is not None:
-                p["between_nodes_W"] = power_between_nodes(problem, p["gait"])
         mine = ours[model.name]["min_power_limit_W"]
         row = {"model": model.name, "ours_W": mine, "ours_status": ours[model.name]["min_power_status"],
                "peer": {str(n): {k: v for k, v in p.items() if k != "gait"} for n, p in peer.items()},

@@ -148,7 +148,7 @@ def smallest_limits(solvers, solutions, segments: int, power_points: int) -> lis
     models' optima, as the study runs it) against the peer's own minimisation with its limit held at
     ``power_points`` points between every two of its nodes, and the largest power each gait asks anywhere
     (the peer's on its interpolants; ours is kept on the 4x grid)."""
-    from collocation_peer import PeerProblem, power_between_nodes
+    from collocation_peer import PeerProblem
     from peer_smallest_limit import minimised_limit
 
     from biped_jax.robots.specs import PLANAR_SPECS
@@ -163,7 +163,7 @@ def smallest_limits(solvers, solutions, segments: int, power_points: int) -> lis
     for model, mine in zip(chosen, minima):
         problem = PeerProblem(PLANAR_SPECS[model.mass_class], model.speed, model.power_limit)
         peer = minimised_limit(problem, segments, power_points)
-        peer["between_nodes_W"] = power_between_nodes(problem, peer.pop("gait"))
+        peer.pop("gait")
         ours_w = mine["min_power_limit_W"]
         ratio = None if ours_w is None or peer["limit_W"] is None else ours_w / peer["limit_W"]
         rows.append({"case": f"{model.name} smallest limit", "ours_W": ours_w, "ours_status": mine["min_power_status"],
