@@ -174,7 +174,7 @@ def stance_force(pinned, data) -> jax.Array:
     """(F_x, F_z) the world exerts on the stance shank through the pin, N, from MJX's
     Newton-Euler pass (``rne_postconstraint``: body accelerations with gravity, interaction forces)."""
     data = mjx.rne_postconstraint(pinned, data)
-    return data._impl.cfrc_int[STANCE_BODY, jnp.array([3, 5])]
+    return registry.jax_fields(data).cfrc_int[STANCE_BODY, jnp.array([3, 5])]
 
 
 def stance_acceleration(pinned, q: jax.Array, qd: jax.Array, u: jax.Array) -> jax.Array:

@@ -158,13 +158,16 @@ def _check_options(options) -> None:
                         f"{type(options).__name__}")
 
 
-#: (GaitSettings, mass class template) -> what :func:`_programs` made: the programs and their caches that
-#: every :class:`GaitSolver` of those settings shares, so that a second solver (another study's stage, a
-#: script's second solver) does not trace and compile them again (about 25 s per problem kind and batch
-#: shape at 4 knot spans on 2 cores, even with the compilation cache warm).
-_PROGRAMS: dict = {}
+#: How many sets of programs (one per GaitSettings and mass class template) a process keeps: every
+#: :class:`GaitSolver` of the same settings shares one set, so that a second solver (another study's stage,
+#: a script's second solver) does not trace and compile them again (about 25 s per problem kind and batch
+#: shape at 4 knot spans on 2 cores, even with the compilation cache warm); a sweep over more settings
+#: than this lets the least recently used go (their compiled programs with them, unless a solver still
+#: holds them).
+PROGRAM_SETS = 8
 
 
+@functools.lru_cache(maxsize=PROGRAM_SETS)
 def _programs(settings: gait_problem.GaitSettings, mass_class_template: str) -> dict:
     """The attributes of a :class:`GaitSolver` that depend only on ``settings`` and the template: the
     biped, the problem of every kind, the interior point's programs and colourings (filled on first
@@ -220,10 +223,7 @@ class GaitSolver:
         self.check_refinement = check_refinement
         self.mass_class = mass_class_template
         # every solver of these settings and template shares one set of programs in this process
-        key = (settings, mass_class_template)
-        if key not in _PROGRAMS:
-            _PROGRAMS[key] = _programs(settings, mass_class_template)
-        self.__dict__.update(_PROGRAMS[key])
+        self.__dict__.update(_programs(settings, mass_class_template))
 
     def with_options(self, **changes) -> "GaitSolver":
         """A solver sharing this one's compiled functions with other interior-point options."""

@@ -135,7 +135,8 @@ def momentum(model, data) -> tuple[jax.Array, jax.Array]:
     mjx = registry.import_mjx()
     data = mjx.subtree_vel(model, data)
     mass = model.body_subtreemass[0]
-    return mass * data._impl.subtree_linvel[0], data._impl.subtree_angmom[0]
+    fields = registry.jax_fields(data)
+    return mass * fields.subtree_linvel[0], fields.subtree_angmom[0]
 
 
 def single_support_torques(mj_model: mujoco.MjModel, qpos: np.ndarray, stance: int) -> np.ndarray:

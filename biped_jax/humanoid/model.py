@@ -45,7 +45,7 @@ def external_forces(model, data):
     """The force of the surroundings (the ground) on each body at MJX ``data`` after its constraint
     forces are found (after ``mjx.forward``), world frame, (nbody, 3), N."""
     mjx = registry.import_mjx()
-    return mjx.rne_postconstraint(model, data)._impl.cfrc_ext[:, 3:]
+    return registry.jax_fields(mjx.rne_postconstraint(model, data)).cfrc_ext[:, 3:]
 
 
 def planarised_humanoid(mass_class: str = "12kg") -> mujoco.MjModel:

@@ -135,7 +135,7 @@ def program(mass_class: str = "12kg") -> Program:
         return (data, memory), (command, applied)
 
     # MJX keeps a fixed set of contact slots (geom pairs) and rows per slot: each foot's rows, found once
-    slots = _forward(model, mjx.make_data(model))._impl
+    slots = registry.jax_fields(_forward(model, mjx.make_data(model)))
     geoms, first, size = (np.asarray(a) for a in (slots.contact.geom, slots.contact.efc_address, slots.contact.dim))
     rows = np.zeros((2, int(slots.efc_J.shape[0])))
     for pair, start, dim in zip(geoms, first, size):
@@ -217,7 +217,8 @@ def ground_forces(prog: Program, data) -> jax.Array:
     two add up to what changes the momentum. (MJX's ``rne_postconstraint`` differs from that by up to 1.6 %
     of the force under these box contacts, measured.)"""
     rows = jnp.asarray(prog.contact_rows)  # (2, nefc): which constraint rows are each foot's contacts
-    return rows @ (data._impl.efc_J[:, :3] * data._impl.efc_force[:, None])
+    fields = registry.jax_fields(data)
+    return rows @ (fields.efc_J[:, :3] * fields.efc_force[:, None])
 
 
 @functools.lru_cache(maxsize=None)
@@ -254,14 +255,12 @@ def fallen(qpos: np.ndarray) -> np.ndarray:
 
 
 def attitude(qpos):
-    """(roll, pitch, yaw) of the torso from the free joint's quaternion in qpos (..., 23), rad (the Z-Y-X
-    angles of :func:`walker.torso_angles`); numpy or jax."""
+    """(roll, pitch, yaw) of the torso from the free joint's quaternion in qpos (..., 23), rad: the angles of
+    :func:`walker.torso_angles` (:func:`walker.zyx_angles` of the quaternion's rotation); numpy or jax."""
     xp = jnp if isinstance(qpos, jax.Array) else np
     w, x, y, z = (qpos[..., 3 + i] for i in range(4))
-    roll = xp.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = xp.arcsin(xp.clip(2 * (w * y - z * x), -1.0, 1.0))
-    yaw = xp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    return roll, pitch, yaw
+    return walker.zyx_angles(1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y), 2 * (y * z + w * x),
+                             1 - 2 * (x * x + y * y), xp)
 
 
 def walk(params: walker.WalkerParams, mass_class: str = "12kg", steps: int = 20, push: Push = NO_PUSH,

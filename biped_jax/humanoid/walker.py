@@ -185,13 +185,15 @@ class Legs:
                    foot_geoms=(int(model.geom("foot_l").id), int(model.geom("foot_r").id)))
 
 
+def zyx_angles(r00, r10, r20, r21, r22, xp=jnp):
+    """(roll, pitch, yaw), rad, Z-Y-X convention (pitch + leans the top forward, roll + tilts it toward -y),
+    from the five entries of a rotation matrix they need (arrays of any shape, numpy with ``xp=np``)."""
+    return xp.arctan2(r21, r22), xp.arctan2(-r20, xp.hypot(r21, r22)), xp.arctan2(r10, r00)
+
+
 def torso_angles(rotation: jax.Array) -> jax.Array:
-    """(roll, pitch, yaw) of a body rotation matrix (3, 3), rad, Z-Y-X convention (pitch + leans the top
-    forward, roll + tilts it toward -y)."""
-    roll = jnp.arctan2(rotation[2, 1], rotation[2, 2])
-    pitch = jnp.arctan2(-rotation[2, 0], jnp.hypot(rotation[2, 1], rotation[2, 2]))
-    yaw = jnp.arctan2(rotation[1, 0], rotation[0, 0])
-    return jnp.stack([roll, pitch, yaw])
+    """(roll, pitch, yaw) of a body rotation matrix (3, 3), rad (:func:`zyx_angles`)."""
+    return jnp.stack(zyx_angles(rotation[0, 0], rotation[1, 0], rotation[2, 0], rotation[2, 1], rotation[2, 2]))
 
 
 def leg_inverse_kinematics(legs: Legs, ankle: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:

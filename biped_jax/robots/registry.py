@@ -89,3 +89,15 @@ def import_mjx():
     with contextlib.redirect_stdout(io.StringIO()):
         from mujoco import mjx
     return mjx
+
+
+def jax_fields(data):
+    """The fields MJX's JAX implementation keeps beside the public ``mjx.Data`` (the constraint rows'
+    Jacobian and forces, subtree momenta, body forces): private in mujoco-mjx 3.x (``Data._impl``), so read
+    here only; a named error where a MuJoCo version keeps them elsewhere."""
+    try:
+        return data._impl
+    except AttributeError:
+        raise RuntimeError(f"this mujoco-mjx ({mujoco.__version__}) keeps no implementation fields at "
+                           "Data._impl, which biped_jax reads for contact forces and momenta; use mujoco-mjx "
+                           "3.x") from None
