@@ -86,16 +86,17 @@ def pushes(sagittal: float, lateral: float, sagittal_at: float, lateral_at: floa
 PARALLEL_DRIVES = {"12kg": (), "18kg": ("hip_roll",)}
 
 
-def walk_drives(mass_class: str = "12kg"):
+def walk_drives(mass_class: str = "12kg", parallel: tuple[str, ...] | None = None):
     """The drives of the walk of ``mass_class``: the recommended one at every joint, two in parallel at
-    the joints of :data:`PARALLEL_DRIVES`."""
-    return free_base.walk_drives(parallel=PARALLEL_DRIVES[free_base.check_mass_class(mass_class)])
+    the joints ``parallel`` (leg joint names; default :data:`PARALLEL_DRIVES` of the mass class)."""
+    chosen = PARALLEL_DRIVES[free_base.check_mass_class(mass_class)] if parallel is None else parallel
+    return free_base.walk_drives(parallel=tuple(chosen))
 
 
-def walk_model(mass_class: str = "12kg") -> mujoco.MjModel:
+def walk_model(mass_class: str = "12kg", parallel: tuple[str, ...] | None = None) -> mujoco.MjModel:
     """The free-base humanoid of the walk (:func:`free_base.free_base_humanoid`, the reflected inertia of
     :func:`walk_drives` at every joint) with the walk's solver caps."""
-    model = free_base.free_base_humanoid(mass_class, walk_drives(mass_class))
+    model = free_base.free_base_humanoid(mass_class, walk_drives(mass_class, parallel))
     model.opt.iterations, model.opt.ls_iterations = SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS
     return model
 
@@ -115,12 +116,13 @@ class Program:
 
 
 @functools.lru_cache(maxsize=None)
-def program(mass_class: str = "12kg") -> Program:
-    """The walk's pieces for ``mass_class`` (made once)."""
-    mj_model = walk_model(mass_class)
+def program(mass_class: str = "12kg", parallel: tuple[str, ...] | None = None) -> Program:
+    """The walk's pieces for ``mass_class`` (made once per mass class and ``parallel``, the joints driven
+    by two drives: :func:`walk_drives`)."""
+    mj_model = walk_model(mass_class, parallel)
     layout = free_base.FreeLayout.of(mj_model)
     legs = walker.Legs.of(mj_model)
-    drives = walk_drives(mass_class)
+    drives = walk_drives(mass_class, parallel)
     model = registry.put_mjx_model(mj_model)
     joint_speed = jnp.asarray(layout.qvel)
     timestep = float(mj_model.opt.timestep)

@@ -286,8 +286,14 @@ def remember(params: WalkerParams, layout: FreeLayout, legs: Legs, data, memory:
     """The memory after a physics step that ended at MJX ``data``: the legs swap when the swing foot has
     landed (its sole within :data:`TOUCHDOWN_HEIGHT` after :data:`EARLIEST_TOUCHDOWN` of T)."""
     soles = sole_heights(legs, data)
+    landed = (soles[1 - memory.stance] < TOUCHDOWN_HEIGHT) & (memory.time > EARLIEST_TOUCHDOWN * params.step_time)
+    return after_step(layout, data, memory, landed, timestep)
+
+
+def after_step(layout: FreeLayout, data, memory: WalkerMemory, landed, timestep: float) -> WalkerMemory:
+    """The memory after a physics step that ended at MJX ``data``: the legs swapped where ``landed`` (the
+    swing foot's touchdown, as the caller's law decides it), else ``timestep`` s later."""
     swing = 1 - memory.stance
-    landed = (soles[swing] < TOUCHDOWN_HEIGHT) & (memory.time > EARLIEST_TOUCHDOWN * params.step_time)
     feet = data.xpos[jnp.asarray(layout.feet)]
     swapped = WalkerMemory(stance=swing, time=jnp.zeros_like(memory.time), lift=feet[memory.stance] - data.qpos[:3],
                            foot=feet[swing], steps=memory.steps + 1,
