@@ -232,17 +232,19 @@ def track_after(prog: walk3d.Program, path: Path3D, gait: reference.GaitReferenc
 
 
 def stepper(prog: walk3d.Program):
-    """``step(args, carry) -> (carry, (command, applied))`` of one physics step; args = (gains, path, gait,
-    walker params), carry = (MJX data, walker memory, track)."""
+    """``step(args, carry, push) -> (carry, (command, applied))`` of one physics step; args = (gains, path,
+    gait, walker params), carry = (MJX data, walker memory, track), ``push`` on the torso
+    (:class:`biped_jax.humanoid.walk3d.Push`)."""
     layout = prog.layout
     timestep = float(prog.mj_model.opt.timestep)
 
-    def step(args, carry):
+    def step(args, carry, push: walk3d.Push = walk3d.NO_PUSH):
         gains, path, gait, params = args
         data, memory, track = carry
         command, s = control(gains, path, gait, params, prog, data, memory, track)
         applied, _ = free_base.drive_torques(prog.drives, command, data.qvel[jnp.asarray(layout.qvel)])
-        data = walk3d.mjx.step(prog.model, data.replace(ctrl=applied))
+        force = jnp.zeros((prog.mj_model.nbody, 6)).at[layout.torso, :3].set(push.at(data.time))
+        data = walk3d.mjx.step(prog.model, data.replace(ctrl=applied, xfrc_applied=force))
         feet = data.xpos[jnp.asarray(layout.feet)]
         landed = ((walker.sole_heights(prog.legs, data)[1 - memory.stance] < walker.TOUCHDOWN_HEIGHT)
                   & (s > TOUCHDOWN_PHASE) & (memory.time > SHORTEST_STEP * gait.step_time)
@@ -255,11 +257,19 @@ def stepper(prog: walk3d.Program):
     return step
 
 
-def start(prog: walk3d.Program, path: Path3D, gait: reference.GaitReference, params: walker.WalkerParams):
-    """(MJX data, walker memory, track) on the gait after a touchdown, leg l standing, moving toward it
-    sideways at ``params.side_speed``."""
+def start_state(path: Path3D, params: walker.WalkerParams) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, qvel) on the gait after a touchdown, leg l standing, moving toward it sideways at
+    ``params.side_speed``."""
     qpos, qvel = np.asarray(path.qpos[0]).copy(), np.asarray(path.qvel[0]).copy()
     qvel[1] += float(params.side_speed)
+    return qpos, qvel
+
+
+def start(prog: walk3d.Program, path: Path3D, gait: reference.GaitReference, params: walker.WalkerParams,
+          qpos: np.ndarray | None = None, qvel: np.ndarray | None = None):
+    """(MJX data, walker memory, track) at ``qpos``, ``qvel`` (default :func:`start_state`)."""
+    if qpos is None or qvel is None:
+        qpos, qvel = start_state(path, params)
     data, memory = walk3d.initial(prog, params, qpos, qvel)
     return data, memory, track_after(prog, path, gait, data, jnp.asarray(0))
 
@@ -292,6 +302,51 @@ def walk(mass_class: str, parallel: tuple[str, ...], args, carry, seconds: float
     record = jax.tree.map(lambda *parts: np.concatenate(parts), *chunks)
     down = np.flatnonzero(walk3d.fallen(record.qpos))
     return record if not len(down) else jax.tree.map(lambda a: a[:down[0] + 1], record)
+
+
+def push_trial(prog, args, batch: int, impulse: float, seconds: float, seed: int = 0) -> dict:
+    """``batch`` walks from disturbed starts (every joint within 0.02 rad, the pelvis's velocity within
+    0.05 m/s per axis of :func:`start_state`, feet put back on the ground), each pushed for
+    ``study.PUSH_DURATION`` s with ``impulse`` N s along +-x at 4 s and along +-y four gait steps later
+    (random signs), for ``seconds`` s: one vmapped program of ``walk3d.BATCH_LANES`` walks, called as often
+    as the batch needs. Returns the signs, who stayed up and the success rate."""
+    gains, path, gait, params = args
+    rng = np.random.default_rng(seed)
+    qpos0, qvel0 = start_state(path, params)
+    joints = list(prog.layout.qpos)
+    step_time = float(gait.step_time)
+    signs = rng.choice([-1.0, 1.0], size=(batch, 2))
+    starts, runs = [], []
+    for b in range(batch):
+        qpos, qvel = qpos0.copy(), qvel0.copy()
+        qpos[joints] += rng.uniform(-0.02, 0.02, len(joints))
+        qvel[:3] += rng.uniform(-0.05, 0.05, 3)
+        qpos[2] -= walk3d._lowest_sole(prog, qpos)
+        starts.append(start(prog, path, gait, params, qpos, qvel))
+        runs.append(walk3d.pushes(signs[b, 0] * impulse, signs[b, 1] * impulse, 4.0, 4.0 + 4 * step_time,
+                                  study.PUSH_DURATION))
+    step, n = stepper(prog), int(round(seconds / float(prog.mj_model.opt.timestep)))
+
+    def one(carry, push):
+        def body(state, _):
+            carry, up = state
+            carry, _ = step(args, carry, push)
+            return (carry, up & walk3d.upright(carry[0].qpos)), None
+
+        (_, up), _ = jax.lax.scan(body, (carry, jnp.asarray(True)), None, length=n)
+        return up
+
+    lanes = min(batch, walk3d.BATCH_LANES)
+    run = jax.jit(jax.vmap(one))
+    up = []
+    for first in range(0, batch, lanes):  # the last call padded with the first runs: one program shape
+        members = [(first + k) % batch for k in range(lanes)]
+        stacked = jax.tree.map(lambda *a: jnp.stack(a), *[starts[b] for b in members])
+        pushed = jax.tree.map(lambda *a: jnp.stack(a), *[walk3d._arrays(runs[b]) for b in members])
+        up.append(np.asarray(run(stacked, pushed))[:min(lanes, batch - first)])
+    up = np.concatenate(up)
+    return {"batch": batch, "impulse_Ns": impulse, "signs": signs.tolist(), "stayed_up": up.tolist(),
+            "success_rate": float(up.mean()), "seconds": seconds}
 
 
 #: CMA-ES: each gain's unit step.
@@ -368,6 +423,10 @@ def main():
     parser.add_argument("--lift-weight", type=float, default=0.0,
                         help="the tuner's penalty on the share of samples with the stance sole lifted")
     parser.add_argument("--seconds", type=float, default=12.0, help="the measured walk's length, s")
+    parser.add_argument("--push-batch", type=int, default=0,
+                        help="walks from disturbed starts in each push trial (0: none; trials at 0 and "
+                             "--push-impulse N s)")
+    parser.add_argument("--push-impulse", type=float, default=0.5, help="each push's impulse, N s")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default=None)
     args = parser.parse_args()
@@ -403,7 +462,13 @@ def main():
            "walk_wall_s": time.perf_counter() - started, "gains": dataclasses.asdict(gains),
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(np.abs(path.torque[:, j]).max())
                                       for j in range(len(prog.layout.qvel))}, **figures}
-    print(json.dumps({k: v for k, v in row.items() if not isinstance(v, dict)}, indent=1), flush=True)
+    for impulse in ((0.0, args.push_impulse) if args.push_batch else ()):
+        started = time.perf_counter()
+        trial = push_trial(prog, arrays, args.push_batch, impulse, 4.0 + 4 * float(gait.step_time) + 4.0)
+        row[f"push_{impulse:g}Ns"] = trial
+        print(f"pushed at {impulse} N s each way: {trial['success_rate']:.2f} of {args.push_batch} stay up "
+              f"({time.perf_counter() - started:.0f} s)", flush=True)
+    print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)
     save_results(args.name or f"humanoid_feedforward_{args.model}", {"model": args.model, "tune": args.tune},
                  [row], args.out)
 
