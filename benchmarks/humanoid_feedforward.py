@@ -6,9 +6,9 @@ this script measures the candidate that replaces it. The law, per physics step, 
 
 - **Path and feed-forward.** The study's optimal step (``biped-jax reproduce``'s results.json) is put on
   the 3D humanoid with leg l standing, its foot flat and still, the swing foot level: the configuration,
-  velocity and acceleration of every degree of freedom on the gait's own grid (the swing foot lifted to
-  :data:`CLEARANCE` as ``biped-jax humanoid``'s replay does). Floating-base inverse dynamics of the walk's
-  model, [S^T J_foot^T] [tau; lambda] = M qacc + bias, give the joint torques that make the humanoid itself
+  velocity and acceleration of every degree of freedom on the gait's own grid (the swing foot lifted as
+  ``biped-jax humanoid``'s replay lifts it). Floating-base inverse dynamics of the walk's model,
+  [S^T J_foot^T] [tau; lambda] = M qacc + bias, give the joint torques that make the humanoid itself
   (its feet, arms and the gearheads' reflected inertia, which the planar optimum does not carry) follow it
   (:func:`biped_jax.humanoid.free_base.single_support`); the run prints each joint's largest, which can
   exceed the optimum's own where the humanoid carries more than the planar model.
@@ -56,8 +56,6 @@ from biped_jax.gait import problem as gait_problem  # noqa: E402
 from biped_jax.humanoid import controller, free_base, reference, walk3d, walker  # noqa: E402
 from biped_jax.studies import humanoid as study  # noqa: E402
 
-#: The swing foot's extra height along the path, m (largest mid-step; :mod:`biped_jax.humanoid.reference`).
-CLEARANCE = 0.01
 #: A leg's sagittal joints in :data:`biped_jax.humanoid.free_base.LEG_JOINTS`: hip pitch, knee, ankle pitch.
 SAGITTAL = (2, 3, 4)
 #: Largest torque of the stance ankle's phase-rate feedback, N m.
@@ -143,18 +141,14 @@ def optimal_step(name: str, gaits: Path):
 
 
 def path_3d(prog: walk3d.Program, model, trajectory, mass_class: str) -> Path3D:
-    """The step on the humanoid (:class:`Path3D`): the gait's states on its grid, the swing foot lifted to
-    :data:`CLEARANCE`, accelerations by differences of the velocities; then the inverse dynamics."""
+    """The step on the humanoid (:class:`Path3D`): the gait's states on its grid, the swing foot lifted as
+    the replay's (:func:`biped_jax.humanoid.reference.clearance_offset`), accelerations by differences of the
+    velocities; then the inverse dynamics."""
     m, layout = prog.mj_model, prog.layout
     t, q, qd = (np.asarray(a) for a in (trajectory.t, trajectory.q, trajectory.qd))
     phase = t / t[-1]
     order = [2, 1, 3, 4]  # (H1, K1, H2, K2) in the pinned chain's coordinates; q[:, 0] the stance angle
-    saved = reference.SWING_CLEARANCE
-    try:
-        reference.SWING_CLEARANCE = CLEARANCE
-        lift = reference.clearance_offset(model, q, phase, phase, mass_class)
-    finally:
-        reference.SWING_CLEARANCE = saved
+    lift = reference.clearance_offset(model, q, phase, phase, mass_class)  # the replay's swing clearance
     joints, rates = q[:, order] + lift, qd[:, order] + np.gradient(lift, t, axis=0)
     pitch = q[:, 0] - joints[:, 0] - joints[:, 1]
     pitch_rate = qd[:, 0] - rates[:, 0] - rates[:, 1]
