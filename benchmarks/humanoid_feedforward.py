@@ -298,6 +298,17 @@ def walk(mass_class: str, parallel: tuple[str, ...], args, carry, seconds: float
     return record if not len(down) else jax.tree.map(lambda a: a[:down[0] + 1], record)
 
 
+def disturbed_start(prog, path: Path3D, params: walker.WalkerParams, rng) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, qvel) of :func:`start_state` with every joint off by up to 0.02 rad and the pelvis's velocity by
+    up to 0.05 m/s per axis (uniform, from ``rng``), the feet put back on the ground."""
+    qpos, qvel = start_state(path, params)
+    joints = list(prog.layout.qpos)
+    qpos[joints] += rng.uniform(-0.02, 0.02, len(joints))
+    qvel[:3] += rng.uniform(-0.05, 0.05, 3)
+    qpos[2] -= walk3d._lowest_sole(prog, qpos)
+    return qpos, qvel
+
+
 def push_trial(prog, args, batch: int, impulse: float, seconds: float, seed: int = 0) -> dict:
     """``batch`` walks from disturbed starts (every joint within 0.02 rad, the pelvis's velocity within
     0.05 m/s per axis of :func:`start_state`, feet put back on the ground), each pushed for
@@ -306,17 +317,11 @@ def push_trial(prog, args, batch: int, impulse: float, seconds: float, seed: int
     as the batch needs. Returns the signs, who stayed up and the success rate."""
     gains, path, gait, params = args
     rng = np.random.default_rng(seed)
-    qpos0, qvel0 = start_state(path, params)
-    joints = list(prog.layout.qpos)
     step_time = float(gait.step_time)
     signs = rng.choice([-1.0, 1.0], size=(batch, 2))
     starts, runs = [], []
     for b in range(batch):
-        qpos, qvel = qpos0.copy(), qvel0.copy()
-        qpos[joints] += rng.uniform(-0.02, 0.02, len(joints))
-        qvel[:3] += rng.uniform(-0.05, 0.05, 3)
-        qpos[2] -= walk3d._lowest_sole(prog, qpos)
-        starts.append(start(prog, path, gait, params, qpos, qvel))
+        starts.append(start(prog, path, gait, params, *disturbed_start(prog, path, params, rng)))
         runs.append(walk3d.pushes(signs[b, 0] * impulse, signs[b, 1] * impulse, 4.0, 4.0 + 4 * step_time,
                                   study.PUSH_DURATION))
     step, n = stepper(prog), int(round(seconds / float(prog.mj_model.opt.timestep)))
@@ -348,17 +353,17 @@ TUNE_SCALE = {"kp": 60.0, "kd": 1.5, "kp_sw": 60.0, "kd_sw": 1.5, "kp_t": 60.0, 
               "kd_a": 0.3, "ankle_w": 5.0, "place": 0.3, "fade": 0.1}
 
 
-def tune(prog, args, carry, generations: int, population: int, seconds: float, step_length: float,
+def tune(prog, args, carries: list, generations: int, population: int, seconds: float, step_length: float,
          step_time: float, lift_weight: float = 0.0, sigma: float = 0.3) -> Gains:
     """CMA-ES over :class:`Gains` from ``args[0]``: a candidate's score is its steps within 5 % of the gait's
     length and 10 % of its time, + 3 if up at the end, + its seconds up, + half its distance, - half its mean
     |command - applied| (N m), - ``lift_weight`` times its share of samples with the stance sole above 2 mm
     after the stance's first 30 ms (a rebound or a rocking foot); one vmapped program of ``population``
-    walks per generation."""
+    walks per generation and start; a candidate's score is its mean over ``carries`` (the starts)."""
     import cma
     step, n = stepper(prog), int(round(seconds / float(prog.mj_model.opt.timestep)))
 
-    def score(gains):
+    def score(gains, carry):
         def body(state, _):
             carry, up, good, distance, last, upright_steps, excess, lifted = state
             before = carry[1]
@@ -381,7 +386,7 @@ def tune(prog, args, carry, generations: int, population: int, seconds: float, s
         return (good + 3 * up + upright_steps / n * seconds + 0.5 * distance - 0.5 * excess / n
                 - lift_weight * lifted / n)
 
-    scores = jax.jit(jax.vmap(score))
+    scores = jax.jit(jax.vmap(score, in_axes=(0, None)))
     names, base = list(TUNE_SCALE), args[0]
     decode = lambda z: Gains(**{k: abs(getattr(base, k) + TUNE_SCALE[k] * z[i]) if k not in ("ankle_w", "place")  # noqa: E731
                                 else getattr(base, k) + TUNE_SCALE[k] * z[i] for i, k in enumerate(names)})
@@ -393,7 +398,7 @@ def tune(prog, args, carry, generations: int, population: int, seconds: float, s
         chosen = [decode(z) for z in candidates]
         chosen = [dataclasses.replace(g, fade=min(max(g.fade, 0.05), 0.5)) for g in chosen]
         batch = jax.tree.map(lambda *a: jnp.asarray(np.array(a, dtype=float)), *chosen)
-        values = np.asarray(scores(batch))
+        values = np.mean([np.asarray(scores(batch, carry)) for carry in carries], axis=0)
         es.tell(candidates, list(-values))
         if values.max() > best[0]:
             best = (float(values.max()), jax.tree.map(lambda a: float(a[int(values.argmax())]), batch))
@@ -413,6 +418,8 @@ def main():
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
     parser.add_argument("--population", type=int, default=24)
     parser.add_argument("--tune-seconds", type=float, default=9.0)
+    parser.add_argument("--tune-starts", type=int, default=1,
+                        help="the tuner's starts: the nominal one and this many minus one disturbed ones")
     parser.add_argument("--tune-sigma", type=float, default=0.3, help="CMA-ES's first step, in TUNE_SCALE units")
     parser.add_argument("--lift-weight", type=float, default=0.0,
                         help="the tuner's penalty on the share of samples with the stance sole lifted")
@@ -440,7 +447,10 @@ def main():
     arrays = walk3d._arrays((gains, path, gait, params))
     carry = start(prog, path, gait, params)
     if args.tune:
-        gains = tune(prog, arrays, carry, args.tune, args.population, args.tune_seconds,
+        rng = np.random.default_rng(2)
+        carries = [carry] + [start(prog, path, gait, params, *disturbed_start(prog, path, params, rng))
+                             for _ in range(args.tune_starts - 1)]
+        gains = tune(prog, arrays, carries, args.tune, args.population, args.tune_seconds,
                      float(model.step_length), float(model.step_length / model.speed), args.lift_weight,
                      args.tune_sigma)
         arrays = walk3d._arrays((gains, path, gait, params))
