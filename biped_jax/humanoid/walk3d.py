@@ -115,10 +115,16 @@ class Program:
     contact_rows: np.ndarray
 
 
-@functools.lru_cache(maxsize=None)
 def program(mass_class: str = "12kg", parallel: tuple[str, ...] | None = None) -> Program:
-    """The walk's pieces for ``mass_class`` (made once per mass class and ``parallel``, the joints driven
-    by two drives: :func:`walk_drives`)."""
+    """The walk's pieces for ``mass_class`` (made once per mass class and set of joints driven by two drives,
+    ``parallel``, default :data:`PARALLEL_DRIVES`: :func:`walk_drives`)."""
+    chosen = PARALLEL_DRIVES[free_base.check_mass_class(mass_class)] if parallel is None else parallel
+    return _program(mass_class, tuple(sorted(chosen)))
+
+
+@functools.lru_cache(maxsize=None)
+def _program(mass_class: str, parallel: tuple[str, ...]) -> Program:
+    """:func:`program` with ``parallel`` spelled out (one cache entry per drive set, however it was named)."""
     mj_model = walk_model(mass_class, parallel)
     layout = free_base.FreeLayout.of(mj_model)
     legs = walker.Legs.of(mj_model)
