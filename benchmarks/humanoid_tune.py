@@ -82,12 +82,13 @@ def main():
     physics_steps = int(round(args.seconds / timestep))
     legs, layout = prog.legs, prog.layout
     feet = jnp.asarray(layout.feet)
+    step = walk3d.stepper(prog)
 
     def walk_cost_terms(params, data, memory):
         def body(carry, _):
             (data, memory), acc = carry
             stance, time_in_step = memory.stance, memory.time
-            (data, memory), (command, applied) = prog.step(params, walk3d.NO_PUSH, (data, memory))
+            (data, memory), (command, applied) = step(params, walk3d.NO_PUSH, (data, memory))
             yaw = walk3d.attitude(data.qpos)[2]
             up = acc["up"] & walk3d.upright(data.qpos)
             soles = walker.sole_heights(legs, data)

@@ -217,8 +217,7 @@ def _parser() -> argparse.ArgumentParser:
                         help="with --faster: continue from the finished optimisation in --out (OUT/stages)")
     replay = subcommands.add_parser("humanoid", help="the optimal sagittal gait replayed on the 16-DoF humanoid "
                                  "under contact in MJX, then the humanoid walking in 3D with its drives in the "
-                                 "loop, pushed (figures, JSON, animations; both walk slower than the gait, see "
-                                 "README)")
+                                 "loop, pushed (figures, JSON, animations)")
     _out_argument(replay)
     replay.add_argument("--model", default="M2", choices=("M1", "M2", "M3", "M4"),
                         help="which of the paper's models (default M2)")
@@ -230,7 +229,11 @@ def _parser() -> argparse.ArgumentParser:
                         help="models walked in 3D on the free-base humanoid with the drives in the loop "
                              "(default M2 M4; none: the sagittal replay alone)")
     replay.add_argument("--walk-steps", type=_integer("walk-steps", 1, 1000), default=20,
-                        help="steps of each 3D walk after its speed ramp, 1-1000 (default 20)")
+                        help="steps of each 3D walk after its start, 1-1000 (default 20)")
+    replay.add_argument("--law", choices=("tracker", "walker"), default="tracker",
+                        help="the 3D walk's law: tracker (the optimal step itself: its own inverse dynamics as "
+                             "feed-forward, phased by the stance angle; two drives at each hip roll) or walker "
+                             "(Raibert foot placement from rest; slower than the gait, sturdier) (default tracker)")
     replay.add_argument("--push-batch", type=_integer("push-batch", 0, 4096), default=64,
                         help="runs in each push trial of the 3D walks (default 64; 0: none)")
     _space_arguments(replay, " when solving here")

@@ -129,14 +129,15 @@ def donald_walk(out: Path, steps: int, faster: bool = False, resume: bool = Fals
 
 
 def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | None,
-                  walk_models: tuple[str, ...] = ("M2", "M4"), walk_steps: int = 20, push_batch: int = 64) -> dict:
+                  walk_models: tuple[str, ...] = ("M2", "M4"), walk_steps: int = 20, push_batch: int = 64,
+                  law: str = "tracker") -> dict:
     """The optimal gait replayed on the humanoid, and the 3D walks; see :mod:`biped_jax.studies.humanoid`."""
     from biped_jax.studies import humanoid as humanoid_study
 
     started = time.perf_counter()
     with live_progress(("humanoid: t =", f"{model}: outer", "3D walk")) as progress:
         report = humanoid_study.run_humanoid(out, model, steps, settings, gaits, progress, walk_models, walk_steps,
-                                             push_batch)
+                                             push_batch, law)
     verdict = "fell" if report["fell"] else "did not fall"
     errors = report["tracking_error_rad"]
     console.print(f"humanoid ({report['mass_class']}) replaying {model}: {report['steps']} touchdowns, "
@@ -160,7 +161,7 @@ def humanoid_walk(out: Path, model: str, steps: int, settings, gaits: Path | Non
 
 def _walk_3d_line(name: str, walk: dict) -> str:
     """One model's 3D walk in a line: steps, fall, speed and step length against the gait's, the drives."""
-    line = f"3D walk of {name} ({walk['mass_class']}): {walk['steps_after_ramp']} steps after the ramp, " + (
+    line = f"3D walk of {name} ({walk['mass_class']}): {walk['steps_after_transient']} steps ({walk['law']}), " + (
         "fell" if walk["fell"] else "did not fall")
     if "speed_ratio" in walk:
         line += (f"; {walk['speed_mps']:.3f} m/s ({walk['speed_ratio']:.0%} of the gait's), step "
@@ -432,7 +433,7 @@ def run_humanoid(args) -> int:
     settings = _settings(args)
     try:
         humanoid_walk(args.out, args.model, args.steps, settings, args.gaits, tuple(args.walk_models),
-                      args.walk_steps, args.push_batch)
+                      args.walk_steps, args.push_batch, args.law)
     except (ValueError, FileNotFoundError) as error:
         args.parser.error(str(error))
     return 0

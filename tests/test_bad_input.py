@@ -43,6 +43,7 @@ CLI_ROWS = [
     (["humanoid", "--walk-models", "M5"], "'M5'"),
     (["humanoid", "--walk-steps", "0"], "--walk-steps must be an integer in [1, 1000], got '0'"),
     (["humanoid", "--push-batch", "-1"], "--push-batch must be an integer in [0, 4096], got '-1'"),
+    (["humanoid", "--law", "fast"], "invalid choice: 'fast'"),
     (["codesign", "--iterations", "0"], "--iterations must be an integer in [1, 1000], got '0'"),
     (["codesign", "--starts", "1"], "--starts must be an integer in [2, 4096], got '1'"),
     (["codesign", "--lanes", "0"], "--lanes must be an integer in [1, 4096], got '0'"),

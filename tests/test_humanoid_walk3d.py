@@ -85,7 +85,7 @@ def test_walks_of_other_gaits_and_batch_members_share_one_program(walks):
     params = walks[0]
     other = dataclasses.replace(params, speed=0.417, step_time=0.48)  # M1's gait
     walk3d.walk(other, "12kg", steps=1, seconds=SECONDS)
-    assert walk3d._recorder("12kg")._cache_size() == 1
+    assert walk3d._recorder("12kg", (), walk3d.WALKER)._cache_size() == 1
     prog = walk3d.program("12kg")
     qpos, qvel = walk3d.disturbed_starts(prog, params, 2, seed=3)
     for impulse in (0.0, 40.0):
@@ -97,7 +97,7 @@ def test_walks_of_other_gaits_and_batch_members_share_one_program(walks):
             assert not up[0] and up[1]
         else:
             assert up.all()
-    assert walk3d._survivor("12kg", 400)._cache_size() == 1
+    assert walk3d._survivor("12kg", (), walk3d.WALKER, 400)._cache_size() == 1
 
 
 def _record(stance, feet, force, qpos=None):

@@ -14,8 +14,10 @@ support switches when the swing foot's ground force rises in the second half of 
 Modules: ``model`` (the planarised humanoid, joint layout), ``reference`` (the gait sampled by phase),
 ``controller``, ``walk`` (the compiled replay), ``touchdown`` (touchdowns against the
 impact map, MuJoCo C), ``report``; their public names are re-exported here. The walk in 3D, each in its
-own namespace: ``free_base`` (the free-base flat-foot humanoid with its drives in the loop), ``walker``
-(its controller), ``walk3d`` (the compiled walk, pushes, the batched push trial, the walk's measures).
+own namespace: ``free_base`` (the free-base flat-foot humanoid with its drives in the loop), ``tracker``
+(the law that tracks the optimal step: its own inverse dynamics as feed-forward, phased by the stance
+angle), ``walker`` (a foot-placement law from rest), ``walk3d`` (the compiled walk of either law, pushes,
+the batched push trial, the walk's measures).
 """
 
 from biped_jax.humanoid.controller import (

@@ -95,18 +95,19 @@ def gait_reference(x, model: gait_problem.GaitModel, settings: gait_problem.Gait
 
 
 def clearance_offset(model: gait_problem.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray,
-                     mass_class: str = "12kg") -> np.ndarray:
+                     mass_class: str = "12kg", clearance: float = SWING_CLEARANCE) -> np.ndarray:
     """Offsets of (H1, K1, H2, K2), shape (S, 4), rad, that lift the swing foot to at least the clearance
-    profile where the optimal step (its states ``q`` (T + 1, 5) at phases ``grid``) runs lower, without
-    moving it forward: a damped least-squares step (:data:`CLEARANCE_DAMPING`) on the swing foot's (x, z)
-    Jacobian with respect to (hip2, knee2), which is singular with a straight swing leg. The geometry is
-    that of ``mass_class``'s planar biped; the masses are the gait's design."""
+    profile (``clearance`` m mid-step, ramps of :data:`CLEARANCE_RAMP`) where the optimal step (its states
+    ``q`` (T + 1, 5) at phases ``grid``) runs lower, without moving it forward: a damped least-squares step
+    (:data:`CLEARANCE_DAMPING`) on the swing foot's (x, z) Jacobian with respect to (hip2, knee2), which is
+    singular with a straight swing leg. The geometry is that of ``mass_class``'s planar biped; the masses are
+    the gait's design."""
     biped = mjx_biped.with_design(mjx_biped.load_planar_biped(mass_class), model.design)
     states = jnp.asarray(np.column_stack([np.interp(phase, grid, q[:, k]) for k in range(q.shape[1])]))
     foot = lambda q_: mjx_biped.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
     jacobians = np.asarray(jax.vmap(jax.jacfwd(foot))(states))[:, :, 3:5]
     height = np.asarray(jax.vmap(foot)(states))[:, 1]
-    profile = SWING_CLEARANCE * np.minimum(1.0, np.minimum(phase, 1.0 - phase) / CLEARANCE_RAMP)
+    profile = clearance * np.minimum(1.0, np.minimum(phase, 1.0 - phase) / CLEARANCE_RAMP)
     lift = np.column_stack([np.zeros_like(phase), np.maximum(profile - height, 0.0)])
     normal = jacobians @ np.swapaxes(jacobians, 1, 2) + CLEARANCE_DAMPING**2 * np.eye(2)
     swing = np.einsum("sji,sj->si", jacobians, np.linalg.solve(normal, lift[..., None])[..., 0])

@@ -1,10 +1,12 @@
-"""The free-base humanoid walking in 3D under contact in MJX: the controller of
-:mod:`biped_jax.humanoid.walker`, every torque clipped to the drive's line, in compiled chunks of physics
-steps; pushes on the torso; a batch of disturbed walks as one vmapped program; the walk's measures.
+"""The free-base humanoid walking in 3D under contact in MJX: a walking law (:class:`Law`: the tracker of
+the optimal step, :mod:`biped_jax.humanoid.tracker`, or the foot-placement walker, :data:`WALKER`), every
+torque clipped to the drive's line, in compiled chunks of physics steps; pushes on the torso; a batch of
+disturbed walks as one vmapped program; the walk's measures.
 
-Coordinates as in :mod:`biped_jax.humanoid.free_base`. A walk starts at rest on both feet with the knees
-at the controller's stance bend and the pelvis moving sideways toward the first stance foot (l) at
-``WalkerParams.side_speed``; the desired speed ramps up over ``WalkerParams.ramp``.
+Coordinates as in :mod:`biped_jax.humanoid.free_base`. The walker's walk (:func:`walk`) starts at rest on
+both feet with the knees at the controller's stance bend and the pelvis moving sideways toward the first
+stance foot (l) at ``WalkerParams.side_speed``; the desired speed ramps up over ``WalkerParams.ramp``. The
+tracker's starts on the gait (:func:`biped_jax.humanoid.tracker.start`); :func:`run` walks either.
 """
 
 from __future__ import annotations
@@ -103,45 +105,66 @@ def walk_model(mass_class: str = "12kg", parallel: tuple[str, ...] | None = None
 
 @dataclasses.dataclass(frozen=True)
 class Program:
-    """The compiled walk of one mass class: the MuJoCo C model, layout, legs' geometry, drives, the MJX
-    model, and the physics step ``step(params, push, (data, memory)) -> ((data, memory), sample)``."""
+    """The walk's physics for one mass class and drive set: the MuJoCo C model, layout, legs' geometry,
+    drives, the MJX model, and which constraint rows are each foot's contacts ((2, nefc), MJX's fixed
+    contact slots)."""
 
     mj_model: mujoco.MjModel
     layout: free_base.FreeLayout
     legs: walker.Legs
     drives: drive_model.JointDrives
     model: object
-    step: Callable
     contact_rows: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class Law:
+    """A walking law on the walk's physics (static; one compiled program per law, mass class and drive set).
+
+    ``control(args, prog, data, state) -> (command, note)``: every actuator's torque (16,), N m, before the
+    drives clip it, at MJX ``data`` (its kinematics from the last step); ``note`` is passed on to
+    ``remember(args, prog, data, state, note, timestep) -> state``, the law's memory after the physics step
+    that ended at ``data``. ``args``: the law's parameters (a pytree of arrays, shared by a batch); ``state``:
+    what it keeps between steps (a pytree whose ``stance`` or first leaf's ``stance`` is the supporting leg).
+    """
+
+    name: str
+    control: Callable
+    remember: Callable
+
+
+def _walker_control(params: walker.WalkerParams, prog: Program, data, memory: walker.WalkerMemory):
+    return walker.control(params, prog.layout, prog.legs, data, memory), None
+
+
+def _walker_remember(params: walker.WalkerParams, prog: Program, data, memory: walker.WalkerMemory, _,
+                     timestep: float) -> walker.WalkerMemory:
+    return walker.remember(params, prog.layout, prog.legs, data, memory, timestep)
+
+
+#: The foot-placement walker of :mod:`biped_jax.humanoid.walker` (args: ``WalkerParams``, state:
+#: ``WalkerMemory``).
+WALKER = Law("walker", _walker_control, _walker_remember)
 
 
 def program(mass_class: str = "12kg", parallel: tuple[str, ...] | None = None) -> Program:
     """The walk's pieces for ``mass_class`` (made once per mass class and set of joints driven by two drives,
     ``parallel``, default :data:`PARALLEL_DRIVES`: :func:`walk_drives`)."""
+    return _program(mass_class, drive_set(mass_class, parallel))
+
+
+def drive_set(mass_class: str, parallel: tuple[str, ...] | None = None) -> tuple[str, ...]:
+    """The leg joints on two drives, sorted: ``parallel``, or :data:`PARALLEL_DRIVES` of the mass class."""
     chosen = PARALLEL_DRIVES[free_base.check_mass_class(mass_class)] if parallel is None else parallel
-    return _program(mass_class, tuple(sorted(chosen)))
+    return tuple(sorted(chosen))
 
 
 @functools.lru_cache(maxsize=None)
 def _program(mass_class: str, parallel: tuple[str, ...]) -> Program:
     """:func:`program` with ``parallel`` spelled out (one cache entry per drive set, however it was named)."""
     mj_model = walk_model(mass_class, parallel)
-    layout = free_base.FreeLayout.of(mj_model)
     legs = walker.Legs.of(mj_model)
-    drives = walk_drives(mass_class, parallel)
     model = registry.put_mjx_model(mj_model)
-    joint_speed = jnp.asarray(layout.qvel)
-    timestep = float(mj_model.opt.timestep)
-
-    def step(params, push, carry):
-        data, memory = carry
-        command = walker.control(params, layout, legs, data, memory)
-        applied, _ = free_base.drive_torques(drives, command, data.qvel[joint_speed])
-        force = jnp.zeros((mj_model.nbody, 6)).at[layout.torso, :3].set(push.at(data.time))
-        data = mjx.step(model, data.replace(ctrl=applied, xfrc_applied=force))
-        memory = walker.remember(params, layout, legs, data, memory, timestep)
-        return (data, memory), (command, applied)
-
     # MJX keeps a fixed set of contact slots (geom pairs) and rows per slot: each foot's rows, found once
     slots = registry.jax_fields(_forward(model, mjx.make_data(model)))
     geoms, first, size = (np.asarray(a) for a in (slots.contact.geom, slots.contact.efc_address, slots.contact.dim))
@@ -150,7 +173,25 @@ def _program(mass_class: str, parallel: tuple[str, ...]) -> Program:
         for foot, geom in enumerate(legs.foot_geoms):
             if geom in pair:
                 rows[foot, start:start + 2 * (dim - 1)] = 1.0  # a pyramidal friction cone's rows
-    return Program(mj_model, layout, legs, drives, model, step, rows)
+    return Program(mj_model, free_base.FreeLayout.of(mj_model), legs, walk_drives(mass_class, parallel), model, rows)
+
+
+def stepper(prog: Program, law: Law = WALKER) -> Callable:
+    """``step(args, push, (data, state)) -> ((data, state), (command, applied))``: one physics step of
+    ``law`` on ``prog``, every torque clipped to its drive's line at the joint's speed
+    (:func:`free_base.drive_torques`), ``push`` (:class:`Push`) on the torso."""
+    layout, joint_speed = prog.layout, jnp.asarray(prog.layout.qvel)
+    timestep = float(prog.mj_model.opt.timestep)
+
+    def step(args, push, carry):
+        data, state = carry
+        command, note = law.control(args, prog, data, state)
+        applied, _ = free_base.drive_torques(prog.drives, command, data.qvel[joint_speed])
+        force = jnp.zeros((prog.mj_model.nbody, 6)).at[layout.torso, :3].set(push.at(data.time))
+        data = mjx.step(prog.model, data.replace(ctrl=applied, xfrc_applied=force))
+        return (data, law.remember(args, prog, data, state, note, timestep)), (command, applied)
+
+    return step
 
 
 def start_state(prog: Program, params: walker.WalkerParams) -> tuple[np.ndarray, np.ndarray]:
@@ -162,7 +203,7 @@ def start_state(prog: Program, params: walker.WalkerParams) -> tuple[np.ndarray,
     for leg in layout.legs:
         for joint, angle in zip(leg[2:5], (-knee / 2, knee, -knee / 2)):  # hip, knee, ankle: feet flat
             qpos[layout.qpos[joint]] = angle
-    qpos[2] -= _lowest_sole(prog, qpos)
+    qpos[2] -= lowest_sole(prog, qpos)
     qvel = np.zeros(mj_model.nv)
     qvel[1] = float(params.side_speed)
     return qpos, qvel
@@ -183,13 +224,15 @@ def initial(prog: Program, params: walker.WalkerParams, qpos: np.ndarray | None 
                                  foot=jnp.asarray(feet[0]), steps=jnp.asarray(0),
                                  knee=jnp.asarray(qpos[prog.layout.qpos[prog.layout.legs[0][3]]]))
     mjx_data = _forward(prog.model, mjx.make_data(prog.model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
-    return jax.device_put((mjx_data, memory))
+    # committed to the device, as the compiled walk's own carry is after a chunk: an uncommitted first carry
+    # is another signature, and the second chunk would compile the walk again
+    return jax.device_put((mjx_data, memory), jax.devices()[0])
 
 
 _forward = jax.jit(lambda model, data: mjx.forward(model, data))
 
 
-def _arrays(tree):
+def fixed_arrays(tree):
     """Every leaf as a float64 array of fixed (not weak) type: one compiled program whatever Python or
     numpy numbers the caller passed."""
     return jax.tree.map(lambda leaf: jnp.asarray(np.asarray(leaf, dtype=float)), tree)
@@ -229,23 +272,27 @@ def ground_forces(prog: Program, data) -> jax.Array:
     return rows @ (fields.efc_J[:, :3] * fields.efc_force[:, None])
 
 
-@functools.lru_cache(maxsize=None)
-def _recorder(mass_class: str):
-    """One compiled call that advances :data:`CHUNK` physics steps and samples each (cached)."""
-    prog = program(mass_class)
-    feet = jnp.asarray(prog.layout.feet)
+def _stance(state) -> jax.Array:
+    """The supporting leg in a law's state (its ``stance``, or its first leaf's)."""
+    return state.stance if hasattr(state, "stance") else state[0].stance
 
-    def sampled(params, push, carry, _):
-        memory = carry[1]
-        carry, (command, applied) = prog.step(params, push, carry)
+
+@functools.lru_cache(maxsize=None)
+def _recorder(mass_class: str, parallel: tuple[str, ...], law: Law):
+    """One compiled call that advances :data:`CHUNK` physics steps of ``law`` and samples each (cached)."""
+    prog = _program(mass_class, parallel)
+    step, feet = stepper(prog, law), jnp.asarray(prog.layout.feet)
+
+    def sampled(args, push, carry, _):
+        stance = _stance(carry[1])
+        carry, (command, applied) = step(args, push, carry)
         data = carry[0]
-        force = ground_forces(prog, data)
         return carry, Walk(t=data.time, qpos=data.qpos, qvel=data.qvel, command=command, applied=applied,
-                           stance=memory.stance, feet=data.xpos[feet], foot_force=force)
+                           stance=stance, feet=data.xpos[feet], foot_force=ground_forces(prog, data))
 
     @jax.jit
-    def advance(params, push, data, memory):
-        return jax.lax.scan(functools.partial(sampled, params, push), (data, memory), None, length=CHUNK)
+    def advance(args, push, carry):
+        return jax.lax.scan(functools.partial(sampled, args, push), carry, None, length=CHUNK)
 
     return advance
 
@@ -273,31 +320,43 @@ def attitude(qpos):
 
 def walk(params: walker.WalkerParams, mass_class: str = "12kg", steps: int = 20, push: Push = NO_PUSH,
          settle: float = 0.5, progress: Callable[[str], None] | None = None, seconds: float | None = None) -> Walk:
-    """Walks until ``steps`` touchdowns after the speed ramp (and ``settle`` s more, to see the last
-    landing), a fall, twice the nominal time or ``seconds`` (rounded up to whole chunks of :data:`CHUNK`
-    physics steps); returns every physics step, the record ending at a fall."""
+    """The walker's walk (:data:`WALKER`) from :func:`start_state`: until ``steps`` touchdowns after the speed
+    ramp (and ``settle`` s more, to see the last landing), a fall, twice the nominal time or ``seconds``
+    (rounded up to whole chunks of :data:`CHUNK` physics steps); returns every physics step, the record
+    ending at a fall."""
     if int(steps) < 1:
         raise ValueError(f"steps must be at least 1, got {steps}")
     if seconds is not None and not seconds > 0:
         raise ValueError(f"seconds must be positive, got {seconds!r}")
     prog = program(mass_class)
-    advance = _recorder(mass_class)
-    data, memory = initial(prog, params)
-    params, push = jax.device_put(_arrays(params)), jax.device_put(_arrays(push))
     ramp_steps = int(np.ceil(float(params.ramp) / float(params.step_time)))
-    wanted = ramp_steps + int(steps)
     limit = float(params.ramp) + 2.0 * int(steps) * float(params.step_time) + settle
     limit = limit if seconds is None else min(limit, seconds - 1e-9)
-    chunks, done_at = [], None
+    return run(WALKER, params, initial(prog, params), mass_class, None, push, ramp_steps + int(steps), limit,
+               settle, progress)
+
+
+def run(law: Law, args, carry, mass_class: str = "12kg", parallel: tuple[str, ...] | None = None,
+        push: Push = NO_PUSH, touchdowns_wanted: int | None = None, limit: float = 10.0, settle: float = 0.5,
+        progress: Callable[[str], None] | None = None) -> Walk:
+    """Walks ``law`` (parameters ``args``) from ``carry`` = (MJX data, the law's state) on the drives of
+    ``mass_class`` and ``parallel`` until ``touchdowns_wanted`` touchdowns (and ``settle`` s more), a fall or
+    ``limit`` s, in compiled chunks of :data:`CHUNK` physics steps; returns every physics step, the record
+    ending at a fall."""
+    advance = _recorder(mass_class, drive_set(mass_class, parallel), law)
+    args, push = jax.device_put(fixed_arrays(args)), jax.device_put(fixed_arrays(push))
+    chunks, done_at, landed = [], None, 0
     while True:
-        (data, memory), sample = advance(params, push, data, memory)
+        carry, sample = advance(args, push, carry)
         chunks.append(jax.tree.map(np.asarray, sample))
+        stance = np.concatenate([chunks[-2].stance[-1:] if len(chunks) > 1 else [], chunks[-1].stance])
+        landed += int(np.count_nonzero(np.diff(stance)))
         t = float(chunks[-1].t[-1])
         down = bool(fallen(chunks[-1].qpos).any())
         if progress:
-            progress(f"3D walk ({mass_class}): t = {t:.1f} s, {int(memory.steps)} touchdowns"
+            progress(f"3D walk ({mass_class}, {law.name}): t = {t:.1f} s, {landed} touchdowns"
                      + (", fallen" if down else ""))
-        if done_at is None and int(memory.steps) >= wanted:
+        if done_at is None and touchdowns_wanted is not None and landed >= touchdowns_wanted:
             done_at = t
         if down or t >= limit or (done_at is not None and t >= done_at + settle):
             break
@@ -318,9 +377,11 @@ def drive_ratio(drives: drive_model.JointDrives, torque: np.ndarray, joint_speed
 
 
 def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_speed: float,
-             gait_step_length: float, steady_after: float | None = None) -> dict:
+             gait_step_length: float, steady_after: float | None = None,
+             parallel: tuple[str, ...] | None = None) -> dict:
     """The walk's figures (SI units), the steady part from the first touchdown after ``steady_after`` s
-    (default: the speed ramp plus one step) to the last touchdown.
+    (default: the speed ramp plus one step) to the last touchdown; the drives of ``mass_class`` with two
+    at the joints ``parallel`` (default :data:`PARALLEL_DRIVES`).
 
     Keys: ``steps`` (touchdowns), ``fell``, ``speed_mps`` and ``speed_ratio`` (pelvis travel over time
     between the steady touchdowns, over the gait's speed), ``step_length_m`` and ``step_length_ratio``
@@ -332,7 +393,7 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
     (largest travel of a stance foot in the plane during its stance, after its first 20 ms),
     ``cost_of_transport`` (positive joint work over weight x distance), ``lateral_drift_m``, ``max_yaw_rad``.
     """
-    prog = program(mass_class)
+    prog = program(mass_class, parallel)
     layout = prog.layout
     fell = bool(fallen(record.qpos[-1]))
     landings = touchdowns(record)
@@ -387,50 +448,61 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
 
 
 @functools.lru_cache(maxsize=None)
-def _survivor(mass_class: str, physics_steps: int):
+def _survivor(mass_class: str, parallel: tuple[str, ...], law: Law, physics_steps: int):
     """One compiled program: a batch of walks of ``physics_steps`` steps (vmapped over the pushes and the
-    start states, the parameters shared), each reporting whether it stayed up and its touchdowns."""
-    prog = program(mass_class)
+    start states, the law's parameters shared), each reporting whether it stayed up and its touchdowns."""
+    step = stepper(_program(mass_class, parallel), law)
 
-    def one(params, push, data, memory):
-        def body(carry, _):
-            state, up = carry
-            state, _ = prog.step(params, push, state)
-            return (state, up & upright(state[0].qpos)), None
+    def one(args, push, carry):
+        def body(state, _):
+            carry, up, steps = state
+            stance = _stance(carry[1])
+            carry, _ = step(args, push, carry)
+            return (carry, up & upright(carry[0].qpos), steps + (_stance(carry[1]) != stance)), None
 
-        ((data, memory), up), _ = jax.lax.scan(body, ((data, memory), jnp.asarray(True)), None, length=physics_steps)
-        return up & jnp.all(jnp.isfinite(data.qpos)), memory.steps
+        ((data, _), up, steps), _ = jax.lax.scan(body, (carry, jnp.asarray(True), jnp.asarray(0)), None,
+                                                 length=physics_steps)
+        return up & jnp.all(jnp.isfinite(data.qpos)), steps
 
-    return jax.jit(jax.vmap(one))
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0)))
 
 
 def survive(params: walker.WalkerParams, pushes: Push, qpos: np.ndarray, qvel: np.ndarray,
             seconds: float, mass_class: str = "12kg") -> tuple[np.ndarray, np.ndarray]:
-    """(stayed up (B,) bool, touchdowns (B,)) of B walks of ``seconds`` s from start states ``qpos`` (B, 23)
-    and ``qvel`` (B, 22), member b pushed by ``pushes`` (fields with a leading axis B); one vmapped program
-    of :data:`BATCH_LANES` walks, called as often as the batch needs."""
+    """(stayed up (B,) bool, touchdowns (B,)) of B walks of the walker (:data:`WALKER`) of ``seconds`` s from
+    start states ``qpos`` (B, 23) and ``qvel`` (B, 22), member b pushed by ``pushes`` (fields with a leading
+    axis B): :func:`survive_from`."""
     prog = program(mass_class)
     qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
     batch = len(qpos)
     if qpos.shape != (batch, prog.mj_model.nq) or qvel.shape != (batch, prog.mj_model.nv):
         raise ValueError(f"qpos and qvel must have shapes (B, {prog.mj_model.nq}) and (B, {prog.mj_model.nv}), "
                          f"got {qpos.shape} and {qvel.shape}")
+    return survive_from(WALKER, params, pushes, lambda b: initial(prog, params, qpos[b], qvel[b]), batch,
+                        seconds, mass_class)
+
+
+def survive_from(law: Law, args, pushes: Push, start: Callable[[int], tuple], batch: int, seconds: float,
+                 mass_class: str = "12kg", parallel: tuple[str, ...] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(stayed up (B,) bool, touchdowns (B,)) of ``batch`` walks of ``law`` of ``seconds`` s, member b from
+    ``start(b)`` (its (MJX data, law state)) and pushed by ``pushes`` (fields with a leading axis B); one
+    vmapped program of :data:`BATCH_LANES` walks, called as often as the batch needs (the last call padded
+    with the first runs: one program shape)."""
     if np.ndim(pushes.force) != 3 or np.shape(pushes.force)[0] != batch:
         raise ValueError(f"pushes.force must have shape ({batch}, P, 3), got {np.shape(pushes.force)}")
     if not seconds > 0:
         raise ValueError(f"seconds must be positive, got {seconds!r}")
-    steps = int(round(seconds / float(prog.mj_model.opt.timestep)))
-    program_ = _survivor(mass_class, steps)
+    parallel = drive_set(mass_class, parallel)
+    steps = int(round(seconds / float(_program(mass_class, parallel).mj_model.opt.timestep)))
+    program_ = _survivor(mass_class, parallel, law, steps)
     lanes = min(batch, BATCH_LANES)
-    shared = jax.tree.map(lambda leaf: jnp.broadcast_to(leaf, (lanes,) + jnp.shape(leaf)), _arrays(params))
-    pushes = _arrays(pushes)
+    args, pushes = fixed_arrays(args), fixed_arrays(pushes)
     up, touchdowns = [], []
-    for first in range(0, batch, lanes):  # the last call padded with the first runs: one program shape
+    for first in range(0, batch, lanes):
         members = [(first + k) % batch for k in range(lanes)]
-        starts = [initial(prog, params, qpos[b], qvel[b]) for b in members]
-        data, memory = jax.tree.map(lambda *a: jnp.stack(a), *starts)
+        carry = jax.tree.map(lambda *a: jnp.stack(a), *[start(b) for b in members])
         part = jax.tree.map(lambda leaf: leaf[jnp.asarray(members)], pushes)
-        stayed, steps_taken = program_(shared, part, data, memory)
+        stayed, steps_taken = program_(args, part, carry)
         keep = min(lanes, batch - first)
         up.append(np.asarray(stayed)[:keep])
         touchdowns.append(np.asarray(steps_taken)[:keep])
@@ -438,22 +510,23 @@ def survive(params: walker.WalkerParams, pushes: Push, qpos: np.ndarray, qvel: n
 
 
 def disturbed_starts(prog: Program, params: walker.WalkerParams, batch: int, seed: int = 0,
-                     joint_error: float = 0.02, speed_error: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    """``batch`` start states around :func:`start_state`: every joint off by up to ``joint_error`` rad
-    (uniform), the pelvis's velocity off by up to ``speed_error`` m/s per axis, the feet put back on the
-    ground; (qpos (B, 23), qvel (B, 22))."""
-    qpos0, qvel0 = start_state(prog, params)
+                     joint_error: float = 0.02, speed_error: float = 0.05,
+                     around: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``batch`` start states around ``around`` = (qpos, qvel) (default :func:`start_state`): every joint off
+    by up to ``joint_error`` rad (uniform), the pelvis's velocity off by up to ``speed_error`` m/s per axis,
+    the feet put back on the ground; (qpos (B, 23), qvel (B, 22))."""
+    qpos0, qvel0 = start_state(prog, params) if around is None else around
     rng = np.random.default_rng(seed)
     qpos, qvel = np.tile(qpos0, (batch, 1)), np.tile(qvel0, (batch, 1))
     joints = list(prog.layout.qpos)
     for b in range(batch):
         qpos[b, joints] += rng.uniform(-joint_error, joint_error, len(joints))
         qvel[b, :3] += rng.uniform(-speed_error, speed_error, 3)
-        qpos[b, 2] -= _lowest_sole(prog, qpos[b])
+        qpos[b, 2] -= lowest_sole(prog, qpos[b])
     return qpos, qvel
 
 
-def _lowest_sole(prog: Program, qpos: np.ndarray) -> float:
+def lowest_sole(prog: Program, qpos: np.ndarray) -> float:
     """Height of the lowest corner of either foot above the ground at ``qpos`` (MuJoCo C kinematics), m."""
     data = mujoco.MjData(prog.mj_model)
     data.qpos[:] = qpos

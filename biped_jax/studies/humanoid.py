@@ -133,11 +133,11 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
                  settings: gait_problem.GaitSettings = gait_problem.GaitSettings(),
                  gaits: Path | None = None, progress: Callable[[str], None] | None = None,
                  walk_models: tuple[str, ...] = WALK_MODELS, walk_steps: int = 20,
-                 push_batch: int = PUSH_BATCH) -> dict:
+                 push_batch: int = PUSH_BATCH, law: str = "tracker") -> dict:
     """Replays model ``name``'s optimal step for ``steps`` steps on the planarised humanoid, then walks each
-    of ``walk_models`` in 3D on the free-base humanoid (``walk_steps`` steps after the speed ramp, push
-    trials of ``push_batch`` runs; 0: none). Writes humanoid.json (the 3D walks under ``models``),
-    humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, humanoid_replay.npz,
+    of ``walk_models`` in 3D on the free-base humanoid with ``law`` (:data:`LAWS`; ``walk_steps`` steps after
+    the start's transient, push trials of ``push_batch`` runs; 0: none). Writes humanoid.json (the 3D walks
+    under ``models``), humanoid_walk.png, humanoid_tracking.png, humanoid_torque_speed.png, humanoid_replay.npz,
     humanoid_walk3d_<model>.npz and the animations humanoid_walk.gif and humanoid_walk3d_<model>.gif
     (:func:`biped_jax.report.animation.write_gif`; a warning instead where this machine has no OpenGL for
     headless rendering)."""
@@ -147,6 +147,8 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
         raise ValueError(f"walk_steps must be at least 1, got {walk_steps}")
     if int(push_batch) < 0:
         raise ValueError(f"push_batch must be 0 or more, got {push_batch}")
+    if law not in LAWS:
+        raise ValueError(f"unknown law {law!r}; known: {', '.join(LAWS)}")
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection as drive_selection
     from biped_jax.dynamics import mjx_biped
@@ -183,19 +185,21 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
     report["models"] = {}
     for model_name in walk_models:
         if model_name == name:
-            walked = trajectory
+            x_walked, settings_walked, walked = x, settings, trajectory
         else:
-            x_other, settings_other, _ = solved_gait(model_name, settings, gaits, say)
+            x_walked, settings_walked, _ = solved_gait(model_name, settings, gaits, say)
             other_class, other_model = paper_model(model_name)
-            walked = jax.jit(lambda x_, m, b=mjx_biped.load_planar_biped(other_class), s=settings_other:
-                             gait_problem.simulate(x_, m, b, s))(jnp.asarray(x_other), other_model)
-        entry, record = walk_3d(model_name, walked, walk_steps, push_batch, say)
+            walked = jax.jit(lambda x_, m, b=mjx_biped.load_planar_biped(other_class), s=settings_walked:
+                             gait_problem.simulate(x_, m, b, s))(jnp.asarray(x_walked), other_model)
+        walking = (tracker_walking(model_name, x_walked, settings_walked, walked) if law == "tracker"
+                   else walker_walking(model_name))
+        entry, record = walk_3d(walking, walked, walk_steps, push_batch, say)
         report["models"][model_name] = entry
         outputs.write_json(out / "humanoid.json", report)
         outputs.save_npz(out / f"humanoid_walk3d_{model_name}.npz", compressed=True, t=record.t, qpos=record.qpos)
         from biped_jax.humanoid import walk3d
-        animations.append((out / f"humanoid_walk3d_{model_name}.gif", walk3d.program(entry["mass_class"]).mj_model,
-                           record.t, record.qpos))
+        animations.append((out / f"humanoid_walk3d_{model_name}.gif",
+                           walk3d.program(walking.mass_class, walking.parallel).mj_model, record.t, record.qpos))
     say("rendering the walks")
     for path, mj_model_, t, qpos in animations:
         try:
@@ -222,26 +226,92 @@ def walk_params(name: str):
     return dataclasses.replace(walker.tuned(mass_class), speed=speed, step_time=step_length / speed)
 
 
-def push_trial(params, mass_class: str, batch: int, impulse: float | None, seed: int = 0) -> dict:
-    """``batch`` walks from disturbed starts (:func:`biped_jax.humanoid.walk3d.disturbed_starts`), each pushed
-    once sagittally (after the ramp and four steps) and once sideways (four steps later), random signs, in one
-    vmapped program (:func:`biped_jax.humanoid.walk3d.survive`). ``impulse`` (N s) for every run, or None: run
-    b's impulse ``PUSH_SWEEP (b + 0.5) / batch`` (the sweep). Returns the runs' impulses, who stayed up, the
-    success rate and, for the sweep, the impulse at which half the runs fall (a logistic fit; None where fewer
-    than one in ten or more than nine in ten fell)."""
+#: The 3D walk's laws (``--law``): ``tracker`` follows the optimal step itself
+#: (:mod:`biped_jax.humanoid.tracker`), ``walker`` places its feet by Raibert's rule
+#: (:mod:`biped_jax.humanoid.walker`).
+LAWS = ("tracker", "walker")
+#: The tracker's walk starts on the gait: its first touchdowns are not counted as steady.
+TRACKER_TRANSIENT = 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Walking:
+    """One model's 3D walk: the law and its parameters, the drives (two at the joints ``parallel``), the
+    start (``start_state`` = (qpos, qvel) and ``start(qpos, qvel)`` -> (MJX data, the law's state)), when the
+    walk is steady (s: the push trials push then), how many touchdowns come before the counted steps and
+    whether the measures' steady part starts after them (else after the walker's ramp and a step:
+    :func:`biped_jax.humanoid.walk3d.measures`)."""
+
+    name: str
+    law: object
+    args: object
+    mass_class: str
+    parallel: tuple[str, ...]
+    start_state: tuple
+    start: Callable
+    steady_at: float
+    transient_touchdowns: int
+    steady_after_transient: bool
+
+    @property
+    def step_time(self) -> float:
+        return float(walk_params(self.name).step_time)
+
+
+def walker_walking(name: str) -> Walking:
+    """Model ``name`` on the foot-placement walker, from rest, its speed ramped up."""
     from biped_jax.humanoid import walk3d
+    mass_class, _ = paper_model(name)
+    params = walk_params(name)
     prog = walk3d.program(mass_class)
-    qpos, qvel = walk3d.disturbed_starts(prog, params, batch, seed)
+    return Walking(name, walk3d.WALKER, params, mass_class, walk3d.drive_set(mass_class),
+                   walk3d.start_state(prog, params), lambda q, v: walk3d.initial(prog, params, q, v),
+                   float(params.ramp) + 4 * float(params.step_time),
+                   int(np.ceil(float(params.ramp) / float(params.step_time))), False)
+
+
+def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory,
+                    gains=None, clearance: float | None = None, parallel: tuple[str, ...] | None = None) -> Walking:
+    """Model ``name`` on the tracker of its optimal step (decision vector ``x`` under ``settings``, simulated
+    as ``trajectory``), from the gait's state after a touchdown: ``gains`` (default
+    :func:`biped_jax.humanoid.tracker.gains_for`), the swing foot's ``clearance`` (m, default
+    :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two drives at the joints ``parallel`` (default
+    :data:`biped_jax.humanoid.tracker.DRIVES`)."""
+    from biped_jax.humanoid import reference, tracker, walk3d
+    mass_class, model = paper_model(name)
+    params = walk_params(name)
+    parallel = walk3d.drive_set(mass_class, tracker.DRIVES if parallel is None else parallel)
+    prog = walk3d.program(mass_class, parallel)
+    gait = reference.gait_reference(x, model, settings, trajectory, mass_class)
+    path = tracker.path_3d(prog, model, trajectory, mass_class,
+                           reference.SWING_CLEARANCE if clearance is None else clearance)
+    args = tracker.TrackerArgs(tracker.gains_for(name) if gains is None else gains, path, gait, params)
+    return Walking(name, tracker.LAW, walk3d.fixed_arrays(args), mass_class, parallel,
+                   tracker.start_state(path, params), lambda q, v: tracker.start(prog, args, q, v),
+                   8 * float(params.step_time), TRACKER_TRANSIENT, True)
+
+
+def push_trial(walking: Walking, batch: int, impulse: float | None, seed: int = 0) -> dict:
+    """``batch`` walks from disturbed starts (:func:`biped_jax.humanoid.walk3d.disturbed_starts` around the
+    walk's start), each pushed once sagittally (at ``walking.steady_at``) and once sideways (four steps
+    later), random signs, in one vmapped program (:func:`biped_jax.humanoid.walk3d.survive_from`).
+    ``impulse`` (N s) for every run, or None: run b's impulse ``PUSH_SWEEP (b + 0.5) / batch`` (the sweep).
+    Returns the runs' impulses, who stayed up, the success rate and, for the sweep, the impulse at which half
+    the runs fall (a logistic fit; None where fewer than one in ten or more than nine in ten fell)."""
+    from biped_jax.humanoid import walk3d
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    qpos, qvel = walk3d.disturbed_starts(prog, walk_params(walking.name), batch, seed, around=walking.start_state)
     rng = np.random.default_rng(seed + 1)
     level = (np.full(batch, impulse) if impulse is not None
              else PUSH_SWEEP * (np.arange(batch) + 0.5) / batch)
     signs = rng.choice([-1.0, 1.0], size=(batch, 2))
-    sagittal_at = float(params.ramp) + 4 * float(params.step_time)
-    lateral_at = sagittal_at + 4 * float(params.step_time)
+    sagittal_at = walking.steady_at
+    lateral_at = sagittal_at + 4 * walking.step_time
     runs = [walk3d.pushes(forward * i, sideways * i, sagittal_at, lateral_at, PUSH_DURATION)
             for i, (forward, sideways) in zip(level, signs)]
     stacked = jax.tree.map(lambda *a: jnp.stack(a), *runs)
-    up, _ = walk3d.survive(params, stacked, qpos, qvel, lateral_at + PUSH_RECOVERY, mass_class)
+    up, _ = walk3d.survive_from(walking.law, walking.args, stacked, lambda b: walking.start(qpos[b], qvel[b]), batch,
+                                lateral_at + PUSH_RECOVERY, walking.mass_class, walking.parallel)
     record = {"batch": batch, "impulses_Ns": level.tolist(), "signs": signs.tolist(), "stayed_up": up.tolist(),
               "success_rate": float(up.mean()), "sagittal_at_s": sagittal_at, "lateral_at_s": lateral_at,
               "duration_s": PUSH_DURATION, "walk_s": lateral_at + PUSH_RECOVERY}
@@ -268,32 +338,45 @@ def half_fall_impulse(impulse: np.ndarray, up: np.ndarray) -> float | None:
     return float(-a / b) if b > 0 else None
 
 
-def walk_3d(name: str, trajectory, steps: int, batch: int, progress: Callable[[str], None]) -> tuple[dict, object]:
-    """Model ``name`` walking in 3D (:mod:`biped_jax.humanoid.walk3d`): ``steps`` steps after the speed ramp,
-    the walk's figures, the push trials (nominal impulse and sweep, ``batch`` runs each), the cost of
-    transport against the optimal step's (``trajectory``). Returns (the record for humanoid.json, the walk)."""
+def walk_3d(walking: Walking, trajectory, steps: int, batch: int, progress: Callable[[str], None]
+            ) -> tuple[dict, object]:
+    """The 3D walk ``walking`` (:mod:`biped_jax.humanoid.walk3d`): ``steps`` steps after its transient
+    touchdowns, the walk's figures, the push trials (nominal impulse and sweep, ``batch`` runs each), the cost
+    of transport against the optimal step's (``trajectory``). Returns (the record for humanoid.json, the
+    walk)."""
     from biped_jax.humanoid import free_base, walk3d
-    mass_class, model = paper_model(name)
+    name, mass_class = walking.name, walking.mass_class
+    _, model = paper_model(name)
     params = walk_params(name)
     speed, step_length = float(model.speed), float(model.step_length)
-    progress(f"compiling the 3D walk ({mass_class}) and walking {name}")
-    record = walk3d.walk(params, mass_class, steps, progress=progress)
-    figures = walk3d.measures(record, mass_class, params, speed, step_length)
-    prog = walk3d.program(mass_class)
+    progress(f"compiling the 3D walk ({mass_class}, {walking.law.name}) and walking {name}")
+    prog = walk3d.program(mass_class, walking.parallel)
+    wanted = walking.transient_touchdowns + int(steps)
+    record = walk3d.run(walking.law, walking.args, walking.start(*walking.start_state), mass_class, walking.parallel,
+                        touchdowns_wanted=wanted, limit=walking.steady_at + 2.0 * wanted * walking.step_time + 0.5,
+                        progress=progress)
+    landings = walk3d.touchdowns(record)
+    steady_after = None  # the walker's: after its ramp and a step
+    if walking.steady_after_transient:
+        steady_after = float(record.t[landings[walking.transient_touchdowns - 1]]) + 1e-9 \
+            if len(landings) >= walking.transient_touchdowns else float(record.t[-1])
+    figures = walk3d.measures(record, mass_class, params, speed, step_length, steady_after, walking.parallel)
     gait_cot = gait_cost_of_transport(trajectory, prog.layout.mass, step_length)
-    entry = {"free_base": True, "mass_class": mass_class, "gait_speed_mps": speed, "gait_step_length_m": step_length,
+    entry = {"free_base": True, "law": walking.law.name, "mass_class": mass_class, "gait_speed_mps": speed,
+             "gait_step_length_m": step_length,
              "drive": f"{free_base.WALK_MOTOR} + {free_base.WALK_GEARHEAD} at every joint" + "".join(
-                 f", two in parallel at each {joint}" for joint in walk3d.PARALLEL_DRIVES[mass_class]),
-             "controller": dataclasses.asdict(params),
-             "steps_after_ramp": max(0, figures["steps"] - int(np.ceil(params.ramp / params.step_time))),
+                 f", two in parallel at each {joint}" for joint in walking.parallel),
+             "controller": dataclasses.asdict(params) if walking.law is walk3d.WALKER else {
+                 "gains": {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()},
+                 "lateral": dataclasses.asdict(params)},
+             "steps_after_transient": max(0, figures["steps"] - walking.transient_touchdowns),
              **figures, "gait_cost_of_transport": gait_cot}
     if entry.get("cost_of_transport") is not None:
         entry["cost_of_transport_ratio"] = entry["cost_of_transport"] / gait_cot
     if batch:
         progress(f"{name}: {batch} pushed walks at {PUSH_IMPULSE} N s, then {batch} over 0-{PUSH_SWEEP} N s")
-        entry["push_nominal"] = push_trial(params, mass_class, batch, PUSH_IMPULSE)
-        entry["push_sweep"] = push_trial(params, mass_class, batch, None, seed=1)
+        entry["push_nominal"] = push_trial(walking, batch, PUSH_IMPULSE)
+        entry["push_sweep"] = push_trial(walking, batch, None, seed=1)
         entry["push_success_rate"] = entry["push_nominal"]["success_rate"]
         entry["push_half_fall_impulse_Ns"] = entry["push_sweep"]["half_fall_impulse_Ns"]
     return entry, record
-

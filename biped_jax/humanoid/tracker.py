@@ -1,0 +1,286 @@
+"""The 3D walk on the optimal gait itself: the humanoid's own inverse dynamics along the sagittal optimum
+as feed-forward, phased by the stance angle, the foot-placement walker's lateral law beside it.
+
+The law (:data:`LAW`, a :class:`biped_jax.humanoid.walk3d.Law`), per physics step, leg l or r standing:
+
+- **Path and feed-forward** (:func:`path_3d`). The study's optimal step is put on the 3D humanoid with leg l
+  standing, its foot flat and still, the swing foot level and lifted to ``clearance`` mid-step
+  (:func:`biped_jax.humanoid.reference.clearance_offset`): every degree of freedom's position, velocity and
+  acceleration on the gait's own grid. Floating-base inverse dynamics of the walk's model with the stance
+  foot's wrench alone moving the base (:func:`biped_jax.humanoid.free_base.single_support`) give the joint
+  torques that make the humanoid itself follow it: its feet, arms and the gearheads' reflected inertia,
+  which the planar optimum does not carry, included.
+- **Phase.** s in [0, 1] from the stance angle theta = torso pitch + stance hip + stance knee, mapped from
+  [theta at touchdown, theta at the step's end] onto the optimal step's (hybrid-zero-dynamics phasing,
+  :func:`biped_jax.humanoid.controller.phase_of`): the legs follow the stance leg's progress, not a clock.
+- **Sagittal joints.** Hip pitch, knee and ankle pitch of both legs: feed-forward(s) + PD to the path(s),
+  the offsets at touchdown fading out over ``fade`` of the step, except the stance hip, which holds the
+  torso's pitch on the path's (and takes back the swing hip's feedback, so the swing leg does not tip the
+  torso); the stance ankle adds ``ankle_w`` (theta_dot_ref(s) - theta_dot), clipped to
+  :data:`ANKLE_FEEDBACK_LIMIT`; the swing hip's target moves ``place`` rad per m/s of pelvis speed above
+  the path's, late in the swing.
+- **Lateral, yaw, arms**: the walker's law (:func:`biped_jax.humanoid.walker.control`: hip roll by the foot
+  placement's lateral term, torso roll and yaw through the stance hip, ankle roll keeping the foot level).
+- **Touchdown**: the swing sole within 1 mm of the ground after s = :data:`TOUCHDOWN_PHASE`, the swing foot
+  :data:`TOUCHDOWN_AHEAD` ahead of the stance foot and :data:`SHORTEST_STEP` of the step time after the
+  last touchdown.
+
+The walk runs on :data:`DRIVES`: the recommended drive at every joint, two at each hip roll (standing on
+one leg the 12 kg robot's hip roll needs 7.9 N m, the GP 32 A gives 6.5; with one drive the 12 kg walk
+falls within a second). Angles in rad, lengths in m, SI throughout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from biped_jax.humanoid import controller, free_base, reference, walk3d, walker
+
+#: A leg's sagittal joints in :data:`biped_jax.humanoid.free_base.LEG_JOINTS`: hip pitch, knee, ankle pitch.
+SAGITTAL = (2, 3, 4)
+#: Largest torque of the stance ankle's phase-rate feedback, N m.
+ANKLE_FEEDBACK_LIMIT = 3.0
+#: Touchdown: earliest phase, how far the swing foot must be ahead of the stance foot (m), and the
+#: shortest step as a share of the gait's step time.
+TOUCHDOWN_PHASE, TOUCHDOWN_AHEAD, SHORTEST_STEP = 0.9, 0.05, 0.5
+#: The leg joints on two drives in parallel (both mass classes).
+DRIVES = ("hip_roll",)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Gains:
+    """The law's gains (N m/rad, N m s/rad unless said): stance knee (kp, kd), swing leg (kp_sw, kd_sw),
+    torso pitch through the stance hip (kp_t, kd_t), ankles' pitch (kp_a, kd_a), ankle_w (N m s/rad on
+    the stance angle's rate), place (rad of swing hip per m/s), fade (share of the step over which the
+    touchdown's offsets fade)."""
+
+    kp: float
+    kd: float
+    kp_sw: float
+    kd_sw: float
+    kp_t: float
+    kd_t: float
+    kp_a: float
+    kd_a: float
+    ankle_w: float
+    place: float
+    fade: float
+
+    def __post_init__(self):
+        for field in dataclasses.fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, (int, float)) and not np.isfinite(value):
+                raise ValueError(f"Gains.{field.name} must be finite, got {value!r}")
+        if isinstance(self.fade, (int, float)) and not 0.0 < self.fade <= 1.0:
+            raise ValueError(f"Gains.fade must be in (0, 1], got {self.fade!r}")
+
+
+#: Each model's gains, tuned by CMA-ES over batched walks on its optimal gait
+#: (``python benchmarks/humanoid_feedforward.py --tune``; the runs in benchmarks/RESULTS.md).
+TUNED = {
+    "M2": Gains(kp=467.55979463612584, kd=2.3877844060517908, kp_sw=98.24471804470495, kd_sw=6.83717260597028,
+                kp_t=334.8495599077686, kd_t=17.34241193347014, kp_a=60.49809372678868, kd_a=3.2180128698869024,
+                ankle_w=-10.322381664485071, place=-0.5853395203591996, fade=0.36215744372380027),
+    "M4": Gains(kp=532.066737845733, kd=0.4761168447127277, kp_sw=230.0750942188896,
+                kd_sw=5.584587555991759, kp_t=380.1768422872628, kd_t=14.970342741430022,
+                kp_a=78.57841635823755, kd_a=3.0130945399253846, ankle_w=-12.123244075703028,
+                place=0.5713431014477469, fade=0.34333709808633567),
+}
+#: The gains of a model without tuned ones: a hand-tuned set (unclipped walks of M2), the tuner's start.
+START = Gains(kp=515.7, kd=0.48, kp_sw=230.4, kd_sw=6.40, kp_t=388.8, kd_t=14.66, kp_a=68.6, kd_a=3.00,
+              ankle_w=-9.39, place=-0.046, fade=0.339)
+
+
+def gains_for(name: str) -> Gains:
+    """:data:`TUNED` gains of the paper's model ``name``, else :data:`START`."""
+    return TUNED.get(name, START)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Path3D:
+    """The optimal step on the 3D humanoid, leg l standing, on the gait's grid (S samples).
+
+    Attributes:
+      phase: (S,), increasing from 0 to 1. qpos: (S, nq), m and rad, the stance foot's body at x = 0.
+      qvel: (S, nv). torque: the inverse dynamics' joint torques in actuator order, (S, 16), N m.
+      pitch: the torso's, (S,), rad.
+    """
+
+    phase: jax.Array
+    qpos: jax.Array
+    qvel: jax.Array
+    torque: jax.Array
+    pitch: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class TrackerArgs:
+    """The law's parameters: gains, the path, the gait (its stance angle by phase) and the walker's
+    parameters of the lateral law (:class:`biped_jax.humanoid.walker.WalkerParams`)."""
+
+    gains: Gains
+    path: Path3D
+    gait: reference.GaitReference
+    params: walker.WalkerParams
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Track:
+    """What the law keeps from the last touchdown: the stance angle then (rad) and the sagittal joints'
+    offsets from the path's start (stance hip, knee, ankle, swing hip, knee, ankle), (6,), rad."""
+
+    stance_angle: jax.Array
+    offset: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class TrackerState:
+    """The law's state: the walker's memory (support, time since touchdown, feet) and the track."""
+
+    memory: walker.WalkerMemory
+    track: Track
+
+    @property
+    def stance(self) -> jax.Array:
+        return self.memory.stance
+
+
+def path_3d(prog: walk3d.Program, model, trajectory, mass_class: str,
+            clearance: float = reference.SWING_CLEARANCE) -> Path3D:
+    """The optimal step (``trajectory`` of the gait ``model``, :func:`biped_jax.gait.problem.simulate`) on
+    the humanoid of ``prog``: the gait's states on its grid, the swing foot lifted to ``clearance`` m,
+    accelerations by differences of the velocities, then the inverse dynamics (MuJoCo C)."""
+    m, layout = prog.mj_model, prog.layout
+    t, q, qd = (np.asarray(a) for a in (trajectory.t, trajectory.q, trajectory.qd))
+    phase = t / t[-1]
+    order = [2, 1, 3, 4]  # (H1, K1, H2, K2) in the pinned chain's coordinates; q[:, 0] the stance angle
+    lift = reference.clearance_offset(model, q, phase, phase, mass_class, clearance)
+    joints, rates = q[:, order] + lift, qd[:, order] + np.gradient(lift, t, axis=0)
+    pitch = q[:, 0] - joints[:, 0] - joints[:, 1]
+    pitch_rate = qd[:, 0] - rates[:, 0] - rates[:, 1]
+    data = mujoco.MjData(m)
+    qpos, qvel = np.zeros((len(t), m.nq)), np.zeros((len(t), m.nv))
+    foot = layout.feet[0]
+    for i in range(len(t)):
+        qpos[i], qvel[i, 4] = m.qpos0, pitch_rate[i]
+        qpos[i, :3] = 0.0
+        qpos[i, 3:7] = [np.cos(pitch[i] / 2), 0.0, np.sin(pitch[i] / 2), 0.0]
+        for leg, (h, k), (hd, kd) in ((layout.legs[0], joints[i, :2], rates[i, :2]),
+                                      (layout.legs[1], joints[i, 2:], rates[i, 2:])):
+            # hip, knee, and the ankle that keeps the foot level
+            for joint, angle, rate in zip(SAGITTAL, (h, k, -(pitch[i] + h + k)), (hd, kd, -(pitch_rate[i] + hd + kd))):
+                qpos[i, layout.qpos[leg[joint]]], qvel[i, layout.qvel[leg[joint]]] = angle, rate
+        data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_comPos(m, data)  # the Jacobian below reads cdof and subtree_com
+        qpos[i, [0, 2]] -= data.xpos[foot][[0, 2]]
+        jacobian = np.zeros((3, m.nv))
+        mujoco.mj_jacBody(m, data, jacobian, None, foot)
+        qvel[i, :3] = -(jacobian[:, 3:] @ qvel[i, 3:])  # the stance foot still (the free joint's columns: I)
+    data.qpos[:] = qpos[0]
+    mujoco.mj_kinematics(m, data)
+    qpos[:, 2] -= float(np.min(walker.sole_heights(prog.legs, data)))
+    held = free_base.single_support(m)
+    torque = np.stack([held(p, 0, v, a) for p, v, a in zip(qpos, qvel, np.gradient(qvel, t, axis=0))])
+    return Path3D(*(jnp.asarray(a) for a in (phase, qpos, qvel, torque, pitch)))
+
+
+def at_phase(path: Path3D, s) -> Path3D:
+    """Every field of ``path`` at phase ``s`` (linear between samples, held beyond the ends): one search
+    for all of them."""
+    i = jnp.clip(jnp.searchsorted(path.phase, s), 1, path.phase.shape[0] - 1)
+    w = jnp.clip((s - path.phase[i - 1]) / (path.phase[i] - path.phase[i - 1]), 0.0, 1.0)
+    return jax.tree.map(lambda column: column[i - 1] + w * (column[i] - column[i - 1]), path)
+
+
+def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
+    """Every actuator's command (16,), N m, and the phase s, at MJX ``data``."""
+    gains, gait, layout, track = args.gains, args.gait, prog.layout, state.track
+    q, qd = data.qpos[jnp.asarray(layout.qpos)], data.qvel[jnp.asarray(layout.qvel)]
+    rotation = data.xmat[layout.torso]
+    pitch, pitch_rate = walker.torso_angles(rotation)[1], (rotation @ data.qvel[3:6])[1]
+    legs = jnp.asarray(layout.legs)
+    stance, swing = legs[state.stance], legs[1 - state.stance]
+    theta = pitch + q[stance[2]] + q[stance[3]]
+    s = controller.phase_of(gait, controller.Support(state.stance, track.stance_angle, track.offset), theta)
+    now = at_phase(args.path, s)
+    fade = jnp.maximum(1.0 - s / gains.fade, 0.0) ** 3
+    place = -gains.place * (data.qvel[0] - now.qvel[0]) * s * s
+    # the walker's law for roll, yaw and arms; its sagittal terms are overwritten below (and dropped by XLA)
+    command = walker.control(args.params, layout, prog.legs, data, state.memory)
+    feedback = {}
+    for side, leg, (kp, kd) in ((0, stance, (gains.kp, gains.kd)), (1, swing, (gains.kp_sw, gains.kd_sw))):
+        for k, joint in enumerate(SAGITTAL):
+            j = layout.legs[side][joint]  # the path's joint (leg l standing)
+            p, d = (gains.kp_a, gains.kd_a) if joint == 4 else (kp, kd)
+            if side == 0 and joint == 2:
+                p = d = 0.0  # the stance hip holds the torso instead
+            target = now.qpos[layout.qpos[j]] + fade * track.offset[3 * side + k] \
+                + (place if side == 1 and joint == 2 else 0.0)
+            feedback[side, joint] = p * (target - q[leg[joint]]) + d * (now.qvel[layout.qvel[j]] - qd[leg[joint]])
+            command = command.at[leg[joint]].set(now.torque[j] + feedback[side, joint])
+    torso = gains.kp_t * (now.pitch - pitch) - gains.kd_t * (pitch_rate - now.qvel[4])
+    command = command.at[stance[2]].add(-torso - feedback[1, 2])
+    theta_rate = pitch_rate + qd[stance[2]] + qd[stance[3]]
+    pace = jnp.interp(s, gait.phase, gait.stance_angle_slope) / gait.step_time - theta_rate
+    command = command.at[stance[4]].add(jnp.clip(gains.ankle_w * pace, -ANKLE_FEEDBACK_LIMIT, ANKLE_FEEDBACK_LIMIT))
+    return command, s
+
+
+def track_after(args: TrackerArgs, prog: walk3d.Program, data, stance) -> Track:
+    """The track when leg ``stance`` has just landed, at MJX ``data``."""
+    layout = prog.layout
+    q = data.qpos[jnp.asarray(layout.qpos)]
+    legs, sagittal = jnp.asarray(layout.legs), jnp.asarray(SAGITTAL)
+    now = jnp.concatenate([q[legs[stance][sagittal]], q[legs[1 - stance][sagittal]]])
+    start = args.path.qpos[0, jnp.asarray([layout.qpos[layout.legs[side][joint]] for side in (0, 1)
+                                           for joint in SAGITTAL])]
+    theta = walker.torso_angles(data.xmat[layout.torso])[1] + now[0] + now[1]
+    # keep a usable phase range where the robot lands far off the path
+    return Track(stance_angle=jnp.minimum(theta, args.gait.stance_angle[-1] - 0.1), offset=now - start)
+
+
+def remember(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState, s, timestep: float
+             ) -> TrackerState:
+    """The state after the physics step that ended at MJX ``data``: the legs swap at a touchdown (the module's
+    rule), the track restarts there. (The track at touchdown is worked out every step and kept only then: a
+    ``cond`` under ``vmap`` computes both branches anyway.)"""
+    layout, memory = prog.layout, state.memory
+    feet = data.xpos[jnp.asarray(layout.feet)]
+    landed = ((walker.sole_heights(prog.legs, data)[1 - memory.stance] < walker.TOUCHDOWN_HEIGHT)
+              & (s > TOUCHDOWN_PHASE) & (memory.time > SHORTEST_STEP * args.gait.step_time)
+              & (feet[1 - memory.stance, 0] - feet[memory.stance, 0] > TOUCHDOWN_AHEAD))
+    new = walker.after_step(layout, data, memory, landed, timestep)
+    track = jax.tree.map(lambda a, b: jnp.where(landed, a, b), track_after(args, prog, data, new.stance), state.track)
+    return TrackerState(new, track)
+
+
+#: The tracker as a walking law (args: :class:`TrackerArgs`, state: :class:`TrackerState`).
+LAW = walk3d.Law("tracker", control, remember)
+
+
+def start_state(path: Path3D, params: walker.WalkerParams) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, qvel) on the gait just after a touchdown, leg l standing, the pelvis also moving toward it
+    sideways at ``params.side_speed`` (the lateral law's start)."""
+    qpos, qvel = np.asarray(path.qpos[0]).copy(), np.asarray(path.qvel[0]).copy()
+    qvel[1] += float(params.side_speed)
+    return qpos, qvel
+
+
+def start(prog: walk3d.Program, args: TrackerArgs, qpos: np.ndarray | None = None,
+          qvel: np.ndarray | None = None) -> tuple:
+    """(MJX data, :class:`TrackerState`) at ``qpos``, ``qvel`` (default :func:`start_state`), leg l standing."""
+    if qpos is None or qvel is None:
+        qpos, qvel = start_state(args.path, args.params)
+    data, memory = walk3d.initial(prog, args.params, qpos, qvel)
+    return data, TrackerState(memory, track_after(args, prog, data, jnp.asarray(0)))

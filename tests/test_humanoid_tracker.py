@@ -1,0 +1,115 @@
+"""The tracker of the optimal step on the free-base humanoid: its path stands on a still, flat foot, its
+table is read as interpolation would, on the path its law commands the inverse dynamics' torques plus PD,
+it lands at the gait's step time, answers a sideways push with a wider step, and one compiled walk serves
+every gait of a mass class."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from biped_jax.humanoid import tracker, walk3d, walker
+from biped_jax.studies import humanoid as humanoid_study
+from biped_jax.studies import paper as study
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("tracker")]
+
+SECONDS = 0.45  # one compiled chunk of physics steps: the first step and its touchdown
+SIDEWAYS = 1.0  # N s, the lateral push: 0.08 m/s on the 12 kg robot
+
+
+@pytest.fixture(scope="module")
+def walkings(paper_solutions, short_solver):
+    """M2's and M1's optimal steps at the tests' short horizon, each on the tracker (one mass class)."""
+    models = study.paper_gait_models(study.PAPER_MODELS)
+    found = {}
+    for k, name in ((1, "M2"), (0, "M1")):
+        batch = jax.tree.map(lambda a: jnp.asarray(a, dtype=jnp.result_type(float))[None], models[k])
+        trajectory = jax.tree.map(lambda a: np.asarray(a[0]), short_solver.simulate(paper_solutions[k].x[None], batch))
+        found[name] = humanoid_study.tracker_walking(name, paper_solutions[k].x, short_solver.settings, trajectory)
+    return found
+
+
+def test_the_path_stands_on_a_still_flat_foot_and_lifts_the_other(walkings):
+    """At every sample of the path the stance foot's four sole corners are on the ground and the foot does not
+    move (MuJoCo C's body velocity); the swing foot's sole is nowhere below the ground."""
+    walking = walkings["M2"]
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    mj_model, path = prog.mj_model, walking.args.path
+    data = mujoco.MjData(mj_model)
+    hx, hy, hz = prog.legs.half_foot
+    corners = np.array([[sx * hx, sy * hy, -hz] for sx in (-1, 1) for sy in (-1, 1)])
+    geom, foot = prog.legs.foot_geoms[0], prog.layout.feet[0]
+    for qpos, qvel in zip(np.asarray(path.qpos), np.asarray(path.qvel)):
+        data.qpos[:], data.qvel[:] = qpos, qvel
+        mujoco.mj_forward(mj_model, data)
+        heights = (data.geom_xpos[geom] + corners @ data.geom_xmat[geom].reshape(3, 3).T)[:, 2]
+        np.testing.assert_allclose(heights, 0.0, atol=1e-9)
+        velocity = np.zeros(6)
+        mujoco.mj_objectVelocity(mj_model, data, mujoco.mjtObj.mjOBJ_BODY, foot, velocity, 0)
+        np.testing.assert_allclose(velocity, 0.0, atol=1e-9)
+        assert float(walker.sole_heights(prog.legs, data)[1]) >= -1e-9
+
+
+def test_the_table_is_read_as_interpolation_would(walkings):
+    """:func:`tracker.at_phase` (one search for every column) equals numpy's interpolation column by column,
+    held at the ends."""
+    path = walkings["M2"].args.path
+    phase = np.asarray(path.phase)
+    for s in (-0.1, 0.0, 0.013, 0.3, 0.5, 0.77, 1.0, 1.2):
+        row = tracker.at_phase(path, jnp.asarray(s))
+        for name in ("qpos", "qvel", "torque"):
+            table = np.asarray(getattr(path, name))
+            expected = [np.interp(s, phase, table[:, k]) for k in range(table.shape[1])]
+            np.testing.assert_allclose(np.asarray(getattr(row, name)), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_on_the_path_the_law_commands_the_inverse_dynamics_plus_pd(walkings):
+    """At the start (on the path, s = 0) every sagittal joint's command is the path's inverse-dynamics
+    torque; moving the swing knee by 0.01 rad adds the swing leg's stiffness times -0.01 to its command
+    alone among the sagittal joints but the stance hip, which takes the swing hip's feedback back."""
+    walking = walkings["M2"]
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    layout, args = prog.layout, walking.args
+    data, state = walking.start(*walking.start_state)
+    command, s = tracker.control(args, prog, data, state)
+    assert float(s) == 0.0
+    joints = [layout.legs[side][joint] for side in (0, 1) for joint in tracker.SAGITTAL]
+    np.testing.assert_allclose(np.asarray(command)[joints], np.asarray(args.path.torque[0])[joints], atol=1e-9)
+    knee = layout.legs[1][3]
+    bent = data.replace(qpos=data.qpos.at[layout.qpos[knee]].add(0.01))
+    moved, _ = tracker.control(args, prog, bent, state)
+    change = np.asarray(moved - command)[joints]
+    expected = np.zeros(len(joints))
+    expected[joints.index(knee)] = -float(args.gains.kp_sw) * 0.01
+    np.testing.assert_allclose(change, expected, atol=1e-9)
+
+
+def test_one_compiled_walk_lands_every_gait_at_its_step_time(walkings):
+    """M2's and M1's first steps (0.36 s and 0.48 s; M1 on the untuned :data:`tracker.START` gains) land
+    within 10 % of their step time, upright, from one compiled program; a sideways push (+y) while foot r swings puts it down further toward +y."""
+    landed = {}
+    for name, walking in walkings.items():
+        record = walk3d.run(walking.law, walking.args, walking.start(*walking.start_state), walking.mass_class,
+                            walking.parallel, limit=SECONDS * walking.step_time / 0.36)
+        landings = walk3d.touchdowns(record)
+        assert len(landings) >= 1 and not walk3d.fallen(record.qpos[:landings[0] + 50]).any()  # up 50 ms after
+        assert float(record.t[landings[0]]) == pytest.approx(walking.step_time, rel=0.1)
+        landed[name] = record
+    walking = walkings["M2"]
+    push = walk3d.pushes(0.0, SIDEWAYS, 0.0, 0.05, duration=0.1)
+    pushed = walk3d.run(walking.law, walking.args, walking.start(*walking.start_state), walking.mass_class,
+                        walking.parallel, push=push, limit=SECONDS)
+    first = [run.feet[walk3d.touchdowns(run)[0], 1, 1] for run in (landed["M2"], pushed)]  # foot r's y
+    assert first[1] > first[0] + 0.01
+    assert walk3d._recorder(walking.mass_class, walking.parallel, tracker.LAW)._cache_size() == 1
+
+
+def test_bad_gains_are_named():
+    with pytest.raises(ValueError, match="fade"):
+        dataclasses.replace(tracker.START, fade=0.0)
+    with pytest.raises(ValueError, match="kp"):
+        dataclasses.replace(tracker.START, kp=float("nan"))
