@@ -170,10 +170,10 @@ def _walk_3d_line(name: str, walk: dict) -> str:
                  f"drive line, cost of transport {walk['cost_of_transport']:.3f} (optimal step "
                  f"{walk['gait_cost_of_transport']:.3f})")
     if "push_success_rate" in walk:
-        from biped_jax.studies.humanoid import PUSH_IMPULSE
+        from biped_jax.studies.humanoid import PUSH_IMPULSE, PUSH_SWEEP
         half = walk["push_half_fall_impulse_Ns"]
         line += (f"; pushed ({PUSH_IMPULSE} N s each way): {walk['push_success_rate']:.0%} stayed up, "
-                 f"half fall at {'-' if half is None else f'{half:.2f}'} N s")
+                 "half fall " + (f"beyond {PUSH_SWEEP} N s" if half is None else f"from {half:.2f} N s on"))
     return line
 
 

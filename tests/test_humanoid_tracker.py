@@ -69,8 +69,9 @@ def test_the_table_is_read_as_interpolation_would(walkings):
 
 def test_on_the_path_the_law_commands_the_inverse_dynamics_plus_pd(walkings):
     """At the start (on the path, s = 0) every sagittal joint's command is the path's inverse-dynamics
-    torque; moving the swing knee by 0.01 rad adds the swing leg's stiffness times -0.01 to its command
-    alone among the sagittal joints but the stance hip, which takes the swing hip's feedback back."""
+    torque; moving the swing knee by 0.01 rad adds the swing leg's stiffness times -0.01 to its command and
+    the ankle's stiffness times -0.01 to the swing ankle's (which keeps the foot level), nothing to the
+    other sagittal joints."""
     walking = walkings["M2"]
     prog = walk3d.program(walking.mass_class, walking.parallel)
     layout, args = prog.layout, walking.args
@@ -85,12 +86,14 @@ def test_on_the_path_the_law_commands_the_inverse_dynamics_plus_pd(walkings):
     change = np.asarray(moved - command)[joints]
     expected = np.zeros(len(joints))
     expected[joints.index(knee)] = -float(args.gains.kp_sw) * 0.01
+    expected[joints.index(layout.legs[1][4])] = -float(args.gains.kp_a) * 0.01
     np.testing.assert_allclose(change, expected, atol=1e-9)
 
 
 def test_one_compiled_walk_lands_every_gait_at_its_step_time(walkings):
     """M2's and M1's first steps (0.36 s and 0.48 s; M1 on the untuned :data:`tracker.START` gains) land
-    within 10 % of their step time, upright, from one compiled program; a sideways push (+y) while foot r swings puts it down further toward +y."""
+    within 10 % of their step time, upright, from one compiled program; a sideways push (+y) while foot r
+    swings puts it down further toward +y."""
     landed = {}
     for name, walking in walkings.items():
         record = walk3d.run(walking.law, walking.args, walking.start(*walking.start_state), walking.mass_class,

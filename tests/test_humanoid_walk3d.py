@@ -152,3 +152,16 @@ def test_bad_input_is_named():
         walk3d.pushes(1.0, 1.0, 0.1, 0.2, duration=0.0)
     with pytest.raises(ValueError, match="lateral"):
         walk3d.pushes(1.0, float("nan"), 0.1, 0.2)
+
+
+def test_the_half_fall_impulse_is_where_falls_cross_one_half():
+    """A logistic fit on synthetic trials: falls from 1 N s on cross one half near 1 N s; all falling gives
+    0 (half fall unpushed), none None (beyond the sweep), most falling from the start 0, not a negative
+    impulse."""
+    from biped_jax.studies.humanoid import half_fall_impulse
+    impulse = np.linspace(0.0, 2.0, 64)
+    assert half_fall_impulse(impulse, impulse < 1.0) == pytest.approx(1.0, abs=0.05)
+    assert half_fall_impulse(impulse, np.zeros(64, bool)) == 0.0
+    assert half_fall_impulse(impulse, np.ones(64, bool)) is None
+    mostly_down = np.random.default_rng(0).uniform(size=64) < 0.2 * (1 - impulse / 2)  # 20 % up unpushed
+    assert half_fall_impulse(impulse, mostly_down) == 0.0

@@ -16,9 +16,10 @@ The law (:data:`LAW`, a :class:`biped_jax.humanoid.walk3d.Law`), per physics ste
 - **Sagittal joints.** Hip pitch, knee and ankle pitch of both legs: feed-forward(s) + PD to the path(s),
   the offsets at touchdown fading out over ``fade`` of the step, except the stance hip, which holds the
   torso's pitch on the path's (and takes back the swing hip's feedback, so the swing leg does not tip the
-  torso); the stance ankle adds ``ankle_w`` (theta_dot_ref(s) - theta_dot), clipped to
-  :data:`ANKLE_FEEDBACK_LIMIT`; the swing hip's target moves ``place`` rad per m/s of pelvis speed above
-  the path's, late in the swing.
+  torso), and the swing ankle, which keeps its foot level in the world as the path does (a foot tilted by
+  the leg's tracking error scuffs the ground at the path's few millimetres of clearance); the stance ankle
+  adds ``ankle_w`` (theta_dot_ref(s) - theta_dot), clipped to :data:`ANKLE_FEEDBACK_LIMIT`; the swing hip's
+  target moves ``place`` rad per m/s of pelvis speed above the path's, late in the swing.
 - **Lateral, yaw, arms**: the walker's law (:func:`biped_jax.humanoid.walker.control`: hip roll by the foot
   placement's lateral term, torso roll and yaw through the stance hip, ankle roll keeping the foot level).
 - **Touchdown**: the swing sole within 1 mm of the ground after s = :data:`TOUCHDOWN_PHASE`, the swing foot
@@ -227,7 +228,11 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
                 p = d = 0.0  # the stance hip holds the torso instead
             target = now.qpos[layout.qpos[j]] + fade * track.offset[3 * side + k] \
                 + (place if side == 1 and joint == 2 else 0.0)
-            feedback[side, joint] = p * (target - q[leg[joint]]) + d * (now.qvel[layout.qvel[j]] - qd[leg[joint]])
+            rate = now.qvel[layout.qvel[j]]
+            if side == 1 and joint == 4:  # the swing foot level in the world, as on the path, whatever the leg
+                target = -(pitch + q[leg[2]] + q[leg[3]])
+                rate = -(pitch_rate + qd[leg[2]] + qd[leg[3]])
+            feedback[side, joint] = p * (target - q[leg[joint]]) + d * (rate - qd[leg[joint]])
             command = command.at[leg[joint]].set(now.torque[j] + feedback[side, joint])
     torso = gains.kp_t * (now.pitch - pitch) - gains.kd_t * (pitch_rate - now.qvel[4])
     command = command.at[stance[2]].add(-torso - feedback[1, 2])

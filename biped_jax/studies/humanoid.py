@@ -297,7 +297,7 @@ def push_trial(walking: Walking, batch: int, impulse: float | None, seed: int = 
     later), random signs, in one vmapped program (:func:`biped_jax.humanoid.walk3d.survive_from`).
     ``impulse`` (N s) for every run, or None: run b's impulse ``PUSH_SWEEP (b + 0.5) / batch`` (the sweep).
     Returns the runs' impulses, who stayed up, the success rate and, for the sweep, the impulse at which half
-    the runs fall (a logistic fit; None where fewer than one in ten or more than nine in ten fell)."""
+    the runs fall (:func:`half_fall_impulse`)."""
     from biped_jax.humanoid import walk3d
     prog = walk3d.program(walking.mass_class, walking.parallel)
     qpos, qvel = walk3d.disturbed_starts(prog, walk_params(walking.name), batch, seed, around=walking.start_state)
@@ -321,12 +321,15 @@ def push_trial(walking: Walking, batch: int, impulse: float | None, seed: int = 
 
 
 def half_fall_impulse(impulse: np.ndarray, up: np.ndarray) -> float | None:
-    """The impulse (N s) at which a logistic fit of falling against impulse crosses one half; None where
-    fewer than 10 % or more than 90 % of the runs fell (no crossing within the sweep to fit)."""
+    """The impulse (N s) at which a logistic fit of falling against impulse crosses one half: 0.0 where it
+    crosses below zero or more than 90 % of the runs fell (half fall unpushed, or nearly), None where fewer
+    than 10 % fell (no crossing within the sweep)."""
     import scipy.optimize
     fell = ~np.asarray(up, dtype=bool)
-    if not 0.1 <= fell.mean() <= 0.9:
+    if fell.mean() < 0.1:
         return None
+    if fell.mean() > 0.9:
+        return 0.0
     x = np.asarray(impulse, dtype=float)
 
     def loss(theta):
@@ -335,7 +338,7 @@ def half_fall_impulse(impulse: np.ndarray, up: np.ndarray) -> float | None:
 
     fit = scipy.optimize.minimize(loss, np.array([-1.0, 1.0]), method="Nelder-Mead")
     a, b = fit.x
-    return float(-a / b) if b > 0 else None
+    return max(0.0, float(-a / b)) if b > 0 else None
 
 
 def walk_3d(walking: Walking, trajectory, steps: int, batch: int, progress: Callable[[str], None]
