@@ -82,12 +82,14 @@ class Gains:
             raise ValueError(f"Gains.fade must be in (0, 1], got {self.fade!r}")
 
 
-#: Each model's gains, tuned by CMA-ES over batched walks on its optimal gait
-#: (``python benchmarks/humanoid_feedforward.py --tune``; the runs in benchmarks/RESULTS.md).
+#: Each model's gains, tuned by CMA-ES over batched walks on its optimal gait (``python
+#: benchmarks/humanoid_feedforward.py --tune``; the runs in benchmarks/RESULTS.md): M4 by ``--tune 12`` from
+#: :data:`START`, then ``--tune 12 --lift-weight 20``; M2 the same, then ``--tune 10 --tune-starts 4
+#: --lift-weight 20`` (the nominal start and three disturbed ones) with the swing foot kept level.
 TUNED = {
-    "M2": Gains(kp=467.55979463612584, kd=2.3877844060517908, kp_sw=98.24471804470495, kd_sw=6.83717260597028,
-                kp_t=334.8495599077686, kd_t=17.34241193347014, kp_a=60.49809372678868, kd_a=3.2180128698869024,
-                ankle_w=-10.322381664485071, place=-0.5853395203591996, fade=0.36215744372380027),
+    "M2": Gains(kp=490.5805694635744, kd=2.853429688330194, kp_sw=121.9271585160037, kd_sw=7.165147602383263,
+                kp_t=364.71156709148187, kd_t=16.714172317241516, kp_a=58.85045376089186, kd_a=3.210872815114457,
+                ankle_w=-12.520533314809185, place=-0.7586939140065748, fade=0.3616880144323132),
     "M4": Gains(kp=532.066737845733, kd=0.4761168447127277, kp_sw=230.0750942188896,
                 kd_sw=5.584587555991759, kp_t=380.1768422872628, kd_t=14.970342741430022,
                 kp_a=78.57841635823755, kd_a=3.0130945399253846, ankle_w=-12.123244075703028,
