@@ -29,7 +29,6 @@ from biped_jax.commands import configure_jax
 
 configure_jax()
 
-from biped_jax.dynamics import mjx_biped  # noqa: E402
 from biped_jax.gait import problem as gait_problem  # noqa: E402
 from biped_jax.humanoid import reference, tracker, walk3d, walker  # noqa: E402
 from biped_jax.studies import humanoid as study  # noqa: E402
@@ -40,10 +39,7 @@ def optimal_step(name: str, gaits: Path):
     x, settings, status = study.solved_gait(name, gait_problem.GaitSettings(), gaits, print)
     if status != "converged":
         print(f"warning: the {name} gait did not converge ({status})")
-    mass_class, model = study.paper_model(name)
-    biped = mjx_biped.load_planar_biped(mass_class)
-    trajectory = jax.jit(lambda x_, m: gait_problem.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
-    return x, settings, trajectory
+    return x, settings, study.simulated_step(name, x, settings)
 
 
 #: CMA-ES: each gain's unit step.

@@ -70,6 +70,15 @@ def solved_gait(name: str, settings: gait_problem.GaitSettings, gaits: Path | No
     return solution.x, settings, solution.status
 
 
+def simulated_step(name: str, x: np.ndarray, settings: gait_problem.GaitSettings):
+    """The optimal step of model ``name`` (decision vector ``x`` under ``settings``) simulated on its planar
+    biped (:func:`biped_jax.gait.problem.simulate`)."""
+    from biped_jax.dynamics import mjx_biped
+    mass_class, model = paper_model(name)
+    biped = mjx_biped.load_planar_biped(mass_class)
+    return jax.jit(lambda x_, m: gait_problem.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
+
+
 def plot_walk(run: humanoid.Replay, com: np.ndarray, path: Path) -> None:
     """Centre of mass, hips and feet over time (forward and height)."""
     plt = outputs.pyplot()
@@ -151,15 +160,13 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
         raise ValueError(f"unknown law {law!r}; known: {', '.join(LAWS)}")
     from biped_jax.drives import model as drive_model
     from biped_jax.drives import selection as drive_selection
-    from biped_jax.dynamics import mjx_biped
     say = progress or (lambda message: None)
     out.mkdir(parents=True, exist_ok=True)
     mass_class, model = paper_model(name)
     x, settings, status = solved_gait(name, settings, gaits, say)
     if status != "converged":
         say(f"warning: the {name} gait did not converge ({status}); replaying it anyway")
-    biped = mjx_biped.load_planar_biped(mass_class)
-    trajectory = jax.jit(lambda x_, m: gait_problem.simulate(x_, m, biped, settings))(jnp.asarray(x), model)
+    trajectory = simulated_step(name, x, settings)
     reference = humanoid.gait_reference(x, model, settings, trajectory, mass_class)
     say(f"compiling the humanoid's contact simulation and walking {steps} steps")
     run = humanoid.replay(reference, mass_class, steps, progress=say)
@@ -188,9 +195,7 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
             x_walked, settings_walked, walked = x, settings, trajectory
         else:
             x_walked, settings_walked, _ = solved_gait(model_name, settings, gaits, say)
-            other_class, other_model = paper_model(model_name)
-            walked = jax.jit(lambda x_, m, b=mjx_biped.load_planar_biped(other_class), s=settings_walked:
-                             gait_problem.simulate(x_, m, b, s))(jnp.asarray(x_walked), other_model)
+            walked = simulated_step(model_name, x_walked, settings_walked)
         walking = (tracker_walking(model_name, x_walked, settings_walked, walked) if law == "tracker"
                    else walker_walking(model_name))
         entry, record = walk_3d(walking, walked, walk_steps, push_batch, say)
