@@ -5,13 +5,15 @@ command does.
 ``--tune G`` runs G generations of CMA-ES over the law's eleven gains (``--population`` walks of
 ``--tune-seconds`` s per start in one vmapped program per generation; ``--tune-starts K``: the nominal start
 and K - 1 disturbed ones, the score their mean), from ``--gains FILE`` (a result of this script) or the
-model's tuned gains (:data:`biped_jax.humanoid.tracker.TUNED`). Then the walk of ``--steps`` steps after the
-start's transient and, with ``--push-batch B``, the command's two push trials
+model's tuned gains (:data:`biped_jax.humanoid.tracker.TUNED`); ``--tune-lateral G`` first runs G
+generations over the lateral law's numbers (:func:`tune_lateral`, from the model's
+:data:`biped_jax.humanoid.tracker.LATERAL`). Then the walk of ``--steps`` steps after the start's
+transient and, with ``--push-batch B``, the command's two push trials
 (:func:`biped_jax.studies.humanoid.walk_3d`). ``--one-hip-roll-drive`` puts one drive on each hip roll
 instead of the tracker's two; ``--clearance`` sets the swing foot's lift over the optimal step's path.
 
     python benchmarks/humanoid_feedforward.py --gaits OUT [--model M2] [--tune 0] [--steps 56]
-        [--push-batch 0] [--gains FILE.json] [--name humanoid_feedforward_M2]
+        [--tune-lateral 0] [--push-batch 0] [--gains FILE.json] [--name humanoid_feedforward_M2]
 """
 
 import argparse
@@ -45,24 +47,49 @@ def optimal_step(name: str, gaits: Path):
 #: CMA-ES: each gain's unit step.
 TUNE_SCALE = {"kp": 60.0, "kd": 1.5, "kp_sw": 60.0, "kd_sw": 1.5, "kp_t": 60.0, "kd_t": 3.0, "kp_a": 10.0,
               "kd_a": 0.3, "ankle_w": 5.0, "place": 0.3, "fade": 0.1}
+#: CMA-ES over the lateral law: each number's unit step (the fields of WalkerParams it varies).
+LATERAL_SCALE = {"lateral_gain": 0.03, "width": 0.015, "kp_torso": 30.0, "kd_torso": 3.0, "roll_push": 0.4,
+                 "kp_swing": 15.0, "kd_swing": 0.4, "side_speed": 0.05, "roll_lean": 0.03}
+#: Numbers that may take either sign (the others are kept positive).
+SIGNED = ("ankle_w", "place", "side_speed", "roll_lean")
 
 
-def tune(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,
-         step_length: float, lift_weight: float = 0.0, sigma: float = 0.3) -> tracker.Gains:
-    """CMA-ES over :class:`biped_jax.humanoid.tracker.Gains` from ``walking``'s: a candidate's score is its
-    steps within 5 % of the gait's length and 10 % of its time, + 3 if up at the end, + its seconds up, + half
-    its distance, - half its mean |command - applied| (N m), - ``lift_weight`` times its share of samples with
-    the stance sole above 2 mm after the stance's first 30 ms (a rebound or a rocking foot); one vmapped
-    program of ``population`` walks per generation and start; a candidate's score is its mean over
-    ``carries`` (the starts)."""
+def evolve(base: dict, scale: dict, scores, carries: list, generations: int, population: int, sigma: float,
+           seed: int = 1, clip=lambda values: values) -> dict:
+    """CMA-ES from the numbers ``base`` (steps of ``scale``), maximising the mean over ``carries`` (the
+    starts) of ``scores(batch, carry)`` -> (population,), where batch maps each name to a (population,)
+    array; ``clip`` bounds a candidate's numbers (a dict). Returns the best numbers seen."""
     import cma
+    names = list(scale)
+    es = cma.CMAEvolutionStrategy(np.zeros(len(names)), sigma, {"popsize": population, "seed": seed, "verbose": -9})
+    best = (-np.inf, dict(base))
+    for generation in range(generations):
+        started = time.perf_counter()
+        candidates = es.ask()
+        chosen = [clip({k: base[k] + scale[k] * z[i] if k in SIGNED else abs(base[k] + scale[k] * z[i])
+                        for i, k in enumerate(names)}) for z in candidates]
+        batch = {k: jnp.asarray([c[k] for c in chosen]) for k in names}
+        values = np.mean([np.asarray(scores(batch, carry)) for carry in carries], axis=0)
+        es.tell(candidates, list(-values))
+        if values.max() > best[0]:
+            best = (float(values.max()), {**base, **chosen[int(values.argmax())]})
+        print(f"generation {generation}: best {values.max():.2f}, overall {best[0]:.2f} "
+              f"({time.perf_counter() - started:.0f} s)", flush=True)
+    return best[1]
+
+
+def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_weight: float = 0.0,
+               drift_weight: float = 0.0):
+    """score(args, carry): a walk of ``seconds`` s with the law's ``args`` from ``carry``: its steps within
+    5 % of the gait's length and 10 % of its time, + 3 if up at the end, + its seconds up, + half its distance,
+    - half its mean |command - applied| (N m), - ``lift_weight`` times its share of samples with the stance
+    sole above 2 mm after the stance's first 30 ms (a rebound or a rocking foot), - ``drift_weight`` times
+    the pelvis's final distance from the centre line (m)."""
     prog = walk3d.program(walking.mass_class, walking.parallel)
     step, n = walk3d.stepper(prog, tracker.LAW), int(round(seconds / float(prog.mj_model.opt.timestep)))
     step_time = walking.step_time
 
-    def score(gains, carry):
-        args = dataclasses.replace(walking.args, gains=gains)
-
+    def score(args, carry):
         def body(state, _):
             carry, up, good, distance, last, upright_steps, excess, lifted = state
             before = carry[1].memory
@@ -80,31 +107,46 @@ def tune(walking: study.Walking, carries: list, generations: int, population: in
                     lifted + (up & (memory.time > 0.03) & (sole > 0.002))), None
 
         zero = jnp.asarray(0.0)
-        (_, up, good, distance, _, upright_steps, excess, lifted), _ = jax.lax.scan(
+        (carry, up, good, distance, _, upright_steps, excess, lifted), _ = jax.lax.scan(
             body, (carry, jnp.asarray(True), zero, zero, zero, zero, zero, zero), None, length=n)
         return (good + 3 * up + upright_steps / n * seconds + 0.5 * distance - 0.5 * excess / n
-                - lift_weight * lifted / n)
+                - lift_weight * lifted / n - drift_weight * jnp.abs(carry[0].qpos[1]))
 
-    scores = jax.jit(jax.vmap(score, in_axes=(0, None)))
-    names, base = list(TUNE_SCALE), jax.tree.map(float, walking.args.gains)
-    decode = lambda z: tracker.Gains(**{  # noqa: E731
-        k: abs(getattr(base, k) + TUNE_SCALE[k] * z[i]) if k not in ("ankle_w", "place")
-        else getattr(base, k) + TUNE_SCALE[k] * z[i] for i, k in enumerate(names)})
-    es = cma.CMAEvolutionStrategy(np.zeros(len(names)), sigma, {"popsize": population, "seed": 1, "verbose": -9})
-    best = (-np.inf, base)
-    for generation in range(generations):
-        started = time.perf_counter()
-        candidates = es.ask()
-        chosen = [decode(np.asarray(z)) for z in candidates]
-        chosen = [dataclasses.replace(g, fade=min(max(g.fade, 0.05), 0.5)) for g in chosen]
-        batch = jax.tree.map(lambda *a: jnp.asarray(np.array(a, dtype=float)), *chosen)
-        values = np.mean([np.asarray(scores(batch, carry)) for carry in carries], axis=0)
-        es.tell(candidates, list(-values))
-        if values.max() > best[0]:
-            best = (float(values.max()), jax.tree.map(lambda a: float(a[int(values.argmax())]), batch))
-        print(f"generation {generation}: best {values.max():.2f}, overall {best[0]:.2f} "
-              f"({time.perf_counter() - started:.0f} s)", flush=True)
-    return best[1]
+    return score
+
+
+def tune(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,
+         step_length: float, lift_weight: float = 0.0, sigma: float = 0.3) -> tracker.Gains:
+    """CMA-ES over :class:`biped_jax.humanoid.tracker.Gains` from ``walking``'s, a candidate's score its
+    :func:`walk_score` (``lift_weight``) averaged over ``carries`` (the starts); one vmapped program of
+    ``population`` walks per generation and start."""
+    score = walk_score(walking, seconds, step_length, lift_weight)
+    scores = jax.jit(jax.vmap(lambda gains, carry: score(
+        dataclasses.replace(walking.args, gains=tracker.Gains(**gains)), carry), in_axes=(0, None)))
+    base = {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()}
+    best = evolve(base, TUNE_SCALE, scores, carries, generations, population, sigma,
+                  clip=lambda g: {**g, "fade": min(max(g["fade"], 0.05), 0.5)})
+    return tracker.Gains(**best)
+
+
+def tune_lateral(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,
+                 step_length: float, lift_weight: float = 0.0, sigma: float = 0.5) -> dict:
+    """CMA-ES over the lateral law's numbers (:data:`LATERAL_SCALE`) from ``walking``'s, a candidate's score
+    its :func:`walk_score` (``lift_weight``, sideways drift weighed 2 per m) averaged over ``carries`` (the
+    starts); one vmapped program of ``population`` walks per generation and start. Returns the numbers (a
+    dict for :func:`biped_jax.studies.humanoid.tracker_walking`'s ``lateral``)."""
+    score = walk_score(walking, seconds, step_length, lift_weight, drift_weight=2.0)
+    scores = jax.jit(jax.vmap(lambda numbers, carry: score(dataclasses.replace(
+        walking.args, params=dataclasses.replace(walking.args.params, **numbers)), carry), in_axes=(0, None)))
+    base = {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}
+    return evolve(base, LATERAL_SCALE, scores, carries, generations, population, sigma, seed=3)
+
+
+def starts(walking: study.Walking, count: int) -> list:
+    """The tuners' starts: the nominal one and ``count`` - 1 disturbed ones, as (MJX data, law state)."""
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    qpos, qvel = walk3d.disturbed_starts(prog, walking.args.params, count - 1, seed=2, around=walking.start_state)
+    return [walking.start(*walking.start_state)] + [walking.start(q, v) for q, v in zip(qpos, qvel)]
 
 
 def main():
@@ -114,7 +156,8 @@ def main():
     parser.add_argument("--one-hip-roll-drive", action="store_true",
                         help="one drive on each hip roll instead of the tracker's two")
     parser.add_argument("--gains", type=Path, default=None,
-                        help="a result of this script to take the gains from (default: the model's tuned)")
+                        help="a result of this script to take the gains and lateral numbers from "
+                             "(default: the model's tuned)")
     parser.add_argument("--clearance", type=float, default=reference.SWING_CLEARANCE,
                         help="the swing foot's lift over the optimal step's path mid-step, m")
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
@@ -122,6 +165,9 @@ def main():
     parser.add_argument("--tune-seconds", type=float, default=9.0)
     parser.add_argument("--tune-starts", type=int, default=1,
                         help="the tuner's starts: the nominal one and this many minus one disturbed ones")
+    parser.add_argument("--tune-lateral", type=int, default=0,
+                        help="CMA-ES generations over the lateral law's numbers, before the gains' (16 walks of "
+                             "6 s from --tune-starts starts each)")
     parser.add_argument("--tune-sigma", type=float, default=0.3, help="CMA-ES's first step, in TUNE_SCALE units")
     parser.add_argument("--lift-weight", type=float, default=0.0,
                         help="the tuner's penalty on the share of samples with the stance sole lifted")
@@ -133,31 +179,39 @@ def main():
     args = parser.parse_args()
 
     x, settings, trajectory = optimal_step(args.model, args.gaits)
-    gains = tracker.Gains(**json.loads(args.gains.read_text())["rows"][0]["controller"]["gains"]) \
-        if args.gains else None
+    gains = lateral = None
+    if args.gains:
+        controller = json.loads(args.gains.read_text())["rows"][0]["controller"]
+        gains = tracker.Gains(**controller["gains"])
+        lateral = {k: controller["lateral"][k] for k in LATERAL_SCALE}
+    parallel = () if args.one_hip_roll_drive else None
     started = time.perf_counter()
-    walking = study.tracker_walking(args.model, x, settings, trajectory, gains, args.clearance,
-                                    () if args.one_hip_roll_drive else None)
+    walk = lambda gains, lateral: study.tracker_walking(  # noqa: E731
+        args.model, x, settings, trajectory, gains, args.clearance, parallel, lateral)
+    walking = walk(gains, lateral)
     prog = walk3d.program(walking.mass_class, walking.parallel)
     torque = np.abs(np.asarray(walking.args.path.torque)).max(axis=0)
     print(f"inverse dynamics along the path ({time.perf_counter() - started:.1f} s): largest |torque| "
           + ", ".join(f"{prog.mj_model.actuator(j).name} {torque[j]:.2f}" for j in prog.layout.legs[0][1:5])
           + " N m (leg l standing)", flush=True)
+    _, model = study.paper_model(args.model)
+    if args.tune_lateral:
+        lateral = tune_lateral(walking, starts(walking, args.tune_starts), args.tune_lateral, 16, 6.0,
+                               float(model.step_length), args.lift_weight)
+        print("lateral numbers:", json.dumps(lateral), flush=True)
+        walking = walk(walking.args.gains, lateral)
     if args.tune:
-        qpos, qvel = walk3d.disturbed_starts(prog, walking.args.params, args.tune_starts - 1, seed=2,
-                                             around=walking.start_state)
-        carries = [walking.start(*walking.start_state)] + [walking.start(q, v) for q, v in zip(qpos, qvel)]
-        _, model = study.paper_model(args.model)
-        gains = tune(walking, carries, args.tune, args.population, args.tune_seconds, float(model.step_length),
-                     args.lift_weight, args.tune_sigma)
-        walking = study.tracker_walking(args.model, x, settings, trajectory, gains, args.clearance, walking.parallel)
+        gains = tune(walking, starts(walking, args.tune_starts), args.tune, args.population, args.tune_seconds,
+                     float(model.step_length), args.lift_weight, args.tune_sigma)
+        walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE})
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
     row = {"model": args.model, "clearance_m": args.clearance, "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}
     print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)
-    save_results(args.name or f"humanoid_feedforward_{args.model}", {"model": args.model, "tune": args.tune},
+    save_results(args.name or f"humanoid_feedforward_{args.model}", {"model": args.model, "tune": args.tune,
+                                                                         "tune_lateral": args.tune_lateral},
                  [row], args.out)
 
 

@@ -54,6 +54,47 @@ def test_the_path_stands_on_a_still_flat_foot_and_lifts_the_other(walkings):
         assert float(walker.sole_heights(prog.legs, data)[1]) >= -1e-9
 
 
+def test_the_pelvis_sways_over_the_stance_foot_as_a_linear_inverted_pendulum(walkings):
+    """The path's pelvis is at y(t) = c (1 - cosh(w (t - T/2)) / cosh(w T/2)) from the stance foot's line
+    (c the hip's offset, w = sqrt(g / z), z the centre of mass's height mid-step, read here from MuJoCo C),
+    toward the stance foot, on the centre line at both ends of the step."""
+    walking = walkings["M2"]
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    path = walking.args.path
+    qpos, t = np.asarray(path.qpos), np.asarray(path.phase) * walking.step_time
+    data = mujoco.MjData(prog.mj_model)
+    data.qpos[:] = qpos[len(t) // 2]
+    mujoco.mj_kinematics(prog.mj_model, data)
+    mujoco.mj_comPos(prog.mj_model, data)
+    w, c, half = np.sqrt(9.81 / data.subtree_com[0][2]), prog.legs.hip_y, walking.step_time / 2
+    expected = c * (1 - np.cosh(w * (t - half)) / np.cosh(w * half))
+    assert expected.max() > 0.01  # a sway worth testing: 2 cm mid-step
+    np.testing.assert_allclose(qpos[:, 1], expected, rtol=0.01, atol=2e-4)
+
+
+def test_the_path_roll_torques_are_mirrored_when_leg_r_stands(walkings):
+    """Adding torques to the path's hip- and ankle-roll columns adds them to the command as they are while
+    leg l stands, and with their sign flipped on the other leg's joints while leg r stands (the gait
+    mirrored about the sagittal plane); the other joints' commands do not change."""
+    walking = walkings["M2"]
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    layout, args = prog.layout, walking.args
+    rolls = [layout.legs[side][joint] for side in (0, 1) for joint in tracker.ROLLS]
+    extra = np.zeros(args.path.torque.shape[1])
+    extra[rolls] = [0.7, -0.3, 1.1, 0.4]
+    more = dataclasses.replace(args, path=dataclasses.replace(args.path, torque=args.path.torque + extra))
+    data, state = walking.start(*walking.start_state)
+    swapped = dataclasses.replace(state, memory=dataclasses.replace(state.memory, stance=jnp.asarray(1)))
+    for standing, mirrored in ((state, extra), (swapped, np.zeros_like(extra))):
+        if standing is swapped:
+            for side in (0, 1):
+                for joint in tracker.ROLLS:
+                    mirrored[layout.legs[1 - side][joint]] = -extra[layout.legs[side][joint]]
+        change = np.asarray(tracker.control(more, prog, data, standing)[0]
+                            - tracker.control(args, prog, data, standing)[0])
+        np.testing.assert_allclose(change, mirrored, atol=1e-9)
+
+
 def test_the_table_is_read_as_interpolation_would(walkings):
     """:func:`tracker.at_phase` (one search for every column) equals numpy's interpolation column by column,
     held at the ends."""
@@ -116,3 +157,8 @@ def test_bad_gains_are_named():
         dataclasses.replace(tracker.START, fade=0.0)
     with pytest.raises(ValueError, match="kp"):
         dataclasses.replace(tracker.START, kp=float("nan"))
+
+
+def test_unknown_lateral_numbers_are_named():
+    with pytest.raises(ValueError, match="lateral_gian"):
+        humanoid_study.tracker_walking("M2", np.zeros(3), None, None, lateral={"lateral_gian": 0.05})

@@ -5,8 +5,9 @@ The law (:data:`LAW`, a :class:`biped_jax.humanoid.walk3d.Law`), per physics ste
 
 - **Path and feed-forward** (:func:`path_3d`). The study's optimal step is put on the 3D humanoid with leg l
   standing, its foot flat and still, the swing foot level and lifted to ``clearance`` mid-step
-  (:func:`biped_jax.humanoid.reference.clearance_offset`): every degree of freedom's position, velocity and
-  acceleration on the gait's own grid. Floating-base inverse dynamics of the walk's model with the stance
+  (:func:`biped_jax.humanoid.reference.clearance_offset`), the pelvis swaying over the stance foot as a
+  linear inverted pendulum through the hip rolls (:func:`lateral_sway`): every degree of freedom's position,
+  velocity and acceleration on the gait's own grid. Floating-base inverse dynamics of the walk's model with the stance
   foot's wrench alone moving the base (:func:`biped_jax.humanoid.free_base.single_support`) give the joint
   torques that make the humanoid itself follow it: its feet, arms and the gearheads' reflected inertia,
   which the planar optimum does not carry, included.
@@ -21,7 +22,9 @@ The law (:data:`LAW`, a :class:`biped_jax.humanoid.walk3d.Law`), per physics ste
   adds ``ankle_w`` (theta_dot_ref(s) - theta_dot), clipped to :data:`ANKLE_FEEDBACK_LIMIT`; the swing hip's
   target moves ``place`` rad per m/s of pelvis speed above the path's, late in the swing.
 - **Lateral, yaw, arms**: the walker's law (:func:`biped_jax.humanoid.walker.control`: hip roll by the foot
-  placement's lateral term, torso roll and yaw through the stance hip, ankle roll keeping the foot level).
+  placement's lateral term, torso roll and yaw through the stance hip, ankle roll keeping the foot level),
+  with its numbers for the swaying path (:data:`LATERAL`), plus the path's hip- and ankle-roll torques as
+  feed-forward (mirrored when leg r stands).
 - **Touchdown**: the swing sole within 1 mm of the ground after s = :data:`TOUCHDOWN_PHASE`, the swing foot
   :data:`TOUCHDOWN_AHEAD` ahead of the stance foot and :data:`SHORTEST_STEP` of the step time after the
   last touchdown.
@@ -51,6 +54,9 @@ ANKLE_FEEDBACK_LIMIT = 3.0
 TOUCHDOWN_PHASE, TOUCHDOWN_AHEAD, SHORTEST_STEP = 0.9, 0.05, 0.5
 #: The leg joints on two drives in parallel (both mass classes).
 DRIVES = ("hip_roll",)
+#: A leg's roll joints in :data:`biped_jax.humanoid.free_base.LEG_JOINTS`: hip roll, ankle roll.
+ROLLS = (1, 5)
+
 
 
 @jax.tree_util.register_dataclass
@@ -95,6 +101,17 @@ TUNED = {
                 kp_a=78.57841635823755, kd_a=3.0130945399253846, ankle_w=-12.123244075703028,
                 place=0.5713431014477469, fade=0.34333709808633567),
 }
+#: Each model's numbers of the lateral law for the swaying path (:class:`biped_jax.humanoid.walker.WalkerParams`
+#: fields over :func:`biped_jax.studies.humanoid.walk_params`'s), tuned by CMA-ES from :data:`LATERAL_START`
+#: over walks of 6 s from the nominal start and three disturbed ones (``python
+#: benchmarks/humanoid_feedforward.py --tune-lateral``; the runs in benchmarks/RESULTS.md).
+LATERAL = {
+    "M2": {"lateral_gain": 0.1200, "width": 0.05346, "kp_torso": 27.22, "kd_torso": 11.68, "roll_push": 0.2019,
+           "kp_swing": 23.55, "kd_swing": 1.846, "side_speed": -0.00102, "roll_lean": -0.01442},
+}
+#: The lateral numbers of a model without tuned ones: the walker's, its step on the hip's line (the path's
+#: width), no lean into the stance and no sideways speed at the start (the sway carries the pelvis).
+LATERAL_START = {"width": 0.065, "roll_lean": 0.0, "side_speed": 0.0}
 #: The gains of a model without tuned ones: a hand-tuned set (unclipped walks of M2), the tuner's start.
 START = Gains(kp=515.7, kd=0.48, kp_sw=230.4, kd_sw=6.40, kp_t=388.8, kd_t=14.66, kp_a=68.6, kd_a=3.00,
               ankle_w=-9.39, place=-0.046, fade=0.339)
@@ -103,6 +120,11 @@ START = Gains(kp=515.7, kd=0.48, kp_sw=230.4, kd_sw=6.40, kp_t=388.8, kd_t=14.66
 def gains_for(name: str) -> Gains:
     """:data:`TUNED` gains of the paper's model ``name``, else :data:`START`."""
     return TUNED.get(name, START)
+
+
+def lateral_for(name: str) -> dict:
+    """:data:`LATERAL` numbers of the paper's model ``name``, else :data:`LATERAL_START`."""
+    return dict(LATERAL.get(name, LATERAL_START))
 
 
 @jax.tree_util.register_dataclass
@@ -161,7 +183,8 @@ class TrackerState:
 def path_3d(prog: walk3d.Program, model, trajectory, mass_class: str,
             clearance: float = reference.SWING_CLEARANCE) -> Path3D:
     """The optimal step (``trajectory`` of the gait ``model``, :func:`biped_jax.gait.problem.simulate`) on
-    the humanoid of ``prog``: the gait's states on its grid, the swing foot lifted to ``clearance`` m,
+    the humanoid of ``prog``: the gait's states on its grid, the swing foot lifted to ``clearance`` m, the
+    pelvis swaying over the stance foot (:func:`lateral_sway`), the stance foot flat and still,
     accelerations by differences of the velocities, then the inverse dynamics (MuJoCo C)."""
     m, layout = prog.mj_model, prog.layout
     t, q, qd = (np.asarray(a) for a in (trajectory.t, trajectory.q, trajectory.qd))
@@ -171,31 +194,110 @@ def path_3d(prog: walk3d.Program, model, trajectory, mass_class: str,
     joints, rates = q[:, order] + lift, qd[:, order] + np.gradient(lift, t, axis=0)
     pitch = q[:, 0] - joints[:, 0] - joints[:, 1]
     pitch_rate = qd[:, 0] - rates[:, 0] - rates[:, 1]
-    data = mujoco.MjData(m)
-    qpos, qvel = np.zeros((len(t), m.nq)), np.zeros((len(t), m.nv))
-    foot = layout.feet[0]
-    for i in range(len(t)):
-        qpos[i], qvel[i, 4] = m.qpos0, pitch_rate[i]
-        qpos[i, :3] = 0.0
-        qpos[i, 3:7] = [np.cos(pitch[i] / 2), 0.0, np.sin(pitch[i] / 2), 0.0]
-        for leg, (h, k), (hd, kd) in ((layout.legs[0], joints[i, :2], rates[i, :2]),
-                                      (layout.legs[1], joints[i, 2:], rates[i, 2:])):
-            # hip, knee, and the ankle that keeps the foot level
-            for joint, angle, rate in zip(SAGITTAL, (h, k, -(pitch[i] + h + k)), (hd, kd, -(pitch_rate[i] + hd + kd))):
-                qpos[i, layout.qpos[leg[joint]]], qvel[i, layout.qvel[leg[joint]]] = angle, rate
-        data.qpos[:], data.qvel[:] = qpos[i], qvel[i]
-        mujoco.mj_kinematics(m, data)
-        mujoco.mj_comPos(m, data)  # the Jacobian below reads cdof and subtree_com
-        qpos[i, [0, 2]] -= data.xpos[foot][[0, 2]]
-        jacobian = np.zeros((3, m.nv))
-        mujoco.mj_jacBody(m, data, jacobian, None, foot)
-        qvel[i, :3] = -(jacobian[:, 3:] @ qvel[i, 3:])  # the stance foot still (the free joint's columns: I)
-    data.qpos[:] = qpos[0]
-    mujoco.mj_kinematics(m, data)
-    qpos[:, 2] -= float(np.min(walker.sole_heights(prog.legs, data)))
+    qpos, qvel = np.tile(m.qpos0, (len(t), 1)), np.zeros((len(t), m.nv))
+    qpos[:, :3] = 0.0
+    qpos[:, 3:7] = np.column_stack([np.cos(pitch / 2), 0 * pitch, np.sin(pitch / 2), 0 * pitch])
+    qvel[:, 4] = pitch_rate
+    for leg, (h, k), (hd, kd) in ((layout.legs[0], joints[:, :2].T, rates[:, :2].T),
+                                  (layout.legs[1], joints[:, 2:].T, rates[:, 2:].T)):
+        # hip, knee, and the ankle that keeps the foot level
+        for joint, angle, rate in zip(SAGITTAL, (h, k, -(pitch + h + k)), (hd, kd, -(pitch_rate + hd + kd))):
+            qpos[:, layout.qpos[leg[joint]]], qvel[:, layout.qvel[leg[joint]]] = angle, rate
+    qpos, qvel = lateral_sway(prog, qpos, qvel, t)
+    qpos, qvel = planted(prog, qpos, qvel)
     held = free_base.single_support(m)
     torque = np.stack([held(p, 0, v, a) for p, v, a in zip(qpos, qvel, np.gradient(qvel, t, axis=0))])
     return Path3D(*(jnp.asarray(a) for a in (phase, qpos, qvel, torque, pitch)))
+
+
+def planted(prog: walk3d.Program, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, qvel), (S, nq) and (S, nv), with the free base moved so that foot l stands still under its hip
+    (x = 0, y = the hip's offset) with its sole on the ground: the base's position and linear velocity
+    replaced, the joints' kept. The foot must be level at every sample (its angular velocity is then zero)."""
+    m, foot = prog.mj_model, prog.layout.feet[0]
+    qpos, qvel = qpos.copy(), qvel.copy()
+    data = mujoco.MjData(m)
+    for i in range(len(qpos)):
+        data.qpos[:] = qpos[i]
+        mujoco.mj_kinematics(m, data)
+        qpos[i, :3] -= data.xpos[foot] - [0.0, prog.legs.hip_y, 0.0]
+        data.qpos[:] = qpos[i]
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_comPos(m, data)  # the Jacobian below reads cdof and subtree_com
+        jacobian = np.zeros((3, m.nv))
+        mujoco.mj_jacBody(m, data, jacobian, None, foot)
+        qvel[i, :3] = -(jacobian[:, 3:] @ qvel[i, 3:])  # the stance foot still (the free joint's columns: I)
+    qpos[:, 2] -= float(walker.sole_heights(prog.legs, data)[0])  # foot level: its sole's height is the same at all
+    return qpos, qvel
+
+
+def sway_offset(t: np.ndarray, step_time: float, offset: float, com_height: float, gravity: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """The pelvis's lateral offset toward the stance foot and its rate, (S,) each, m and m/s, at times ``t``
+    (s, in [0, ``step_time``]): a linear inverted pendulum over the stance foot's centre, periodic and
+    symmetric over the step, y(t) = c (1 - cosh(w (t - T/2)) / cosh(w T/2)) with c = ``offset`` (the hip's
+    offset from the centre line: y = 0 at both ends, on the centre line, and y = c where the pendulum would
+    stand on the foot) and w = sqrt(g / z), z the centre of mass's height."""
+    omega, half = np.sqrt(gravity / com_height), step_time / 2
+    scale = offset / np.cosh(omega * half)
+    return offset - scale * np.cosh(omega * (t - half)), -scale * omega * np.sinh(omega * (t - half))
+
+
+#: Newton's iterations of the legs' inverse kinematics in :func:`lateral_sway` (it converges in three or four).
+SWAY_ITERATIONS = 10
+
+
+def lateral_sway(prog: walk3d.Program, qpos: np.ndarray, qvel: np.ndarray, t: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The path (qpos (S, nq), qvel (S, nv) at times ``t`` (S,), s; the pelvis on the centre line, the feet
+    level) with the pelvis swaying toward the stance foot (l, +y) by :func:`sway_offset` (the centre of mass's
+    height over the sole mid-step): each leg's joints but the knee solved (Newton on MuJoCo's Jacobians) so
+    that its foot keeps its forward and lateral place and stays level while the pelvis moves sideways, their
+    rates from the same Jacobians, so that the feet's horizontal velocities relative to the pelvis are the
+    path's less the sway's. The base's position and linear velocity are left for :func:`planted`. Without
+    the sway the stance foot's centre of pressure lies beyond the foot's inner edge through the stance
+    (docs/studies.md)."""
+    m, layout = prog.mj_model, prog.layout
+    qpos, qvel = qpos.copy(), qvel.copy()
+    qvel[:, :3] = 0.0  # the feet's velocities below are relative to the pelvis
+    data = mujoco.MjData(m)
+    data.qpos[:] = qpos[len(t) // 2]
+    mujoco.mj_kinematics(m, data)
+    mujoco.mj_comPos(m, data)
+    height = float(data.subtree_com[0][2] - walker.sole_heights(prog.legs, data)[0])
+    y, rate = sway_offset(t, float(t[-1]), prog.legs.hip_y, height, -float(m.opt.gravity[2]))
+    jacobian = np.zeros((6, m.nv))
+
+    def foot_jacobian(i, foot):
+        data.qpos[:] = qpos[i]
+        mujoco.mj_kinematics(m, data)
+        mujoco.mj_comPos(m, data)  # mj_jacBody reads cdof and subtree_com
+        mujoco.mj_jacBody(m, data, jacobian[:3], jacobian[3:], foot)
+        return data.xpos[foot] - data.xpos[layout.torso], data.xmat[foot].reshape(3, 3)
+
+    # The knees keep the path's angles and each foot's height relative to the pelvis is left free: near the
+    # straight knee the pelvis cannot move sideways at its height (the leg would have to lengthen by
+    # y^2 / 2 l, 0.6 mm at 2 cm); it drops by that much instead. The other five joints hold the foot's
+    # forward and lateral place and its level.
+    rows = [0, 1, 3, 4, 5]
+    for i in range(len(t)):
+        for side, foot in enumerate(layout.feet):
+            moved = [j for k, j in enumerate(layout.legs[side]) if free_base.LEG_JOINTS[k] != "knee"]
+            joints, dofs = [layout.qpos[j] for j in moved], [layout.qvel[j] for j in moved]
+            place, _ = foot_jacobian(i, foot)
+            place, velocity = place - [0.0, y[i], 0.0], jacobian[:3] @ qvel[i] - [0.0, rate[i], 0.0]
+            for _ in range(SWAY_ITERATIONS):
+                now, rotation = foot_jacobian(i, foot)
+                tilt = 0.5 * np.array([rotation[1, 2] - rotation[2, 1], rotation[2, 0] - rotation[0, 2],
+                                       rotation[0, 1] - rotation[1, 0]])  # the rotation back to level
+                error = np.concatenate([place - now, tilt])[rows]
+                if np.max(np.abs(error)) < 1e-13:
+                    break
+                qpos[i, joints] += np.linalg.solve(jacobian[np.ix_(rows, dofs)], error)
+            foot_jacobian(i, foot)
+            wanted = np.concatenate([velocity, np.zeros(3)]) - jacobian @ qvel[i]
+            qvel[i, dofs] += np.linalg.solve(jacobian[np.ix_(rows, dofs)], wanted[rows])
+    return qpos, qvel
 
 
 def at_phase(path: Path3D, s) -> Path3D:
@@ -241,6 +343,11 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
     theta_rate = pitch_rate + qd[stance[2]] + qd[stance[3]]
     pace = jnp.interp(s, gait.phase, gait.stance_angle_slope) / gait.step_time - theta_rate
     command = command.at[stance[4]].add(jnp.clip(gains.ankle_w * pace, -ANKLE_FEEDBACK_LIMIT, ANKLE_FEEDBACK_LIMIT))
+    # the path's roll torques on top of the lateral law, mirrored (sign flipped) when leg r stands
+    mirror = jnp.where(state.stance == 0, 1.0, -1.0)
+    for side, leg in ((0, stance), (1, swing)):
+        for joint in ROLLS:
+            command = command.at[leg[joint]].add(mirror * now.torque[layout.legs[side][joint]])
     return command, s
 
 

@@ -276,15 +276,21 @@ def walker_walking(name: str) -> Walking:
 
 
 def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory,
-                    gains=None, clearance: float | None = None, parallel: tuple[str, ...] | None = None) -> Walking:
+                    gains=None, clearance: float | None = None, parallel: tuple[str, ...] | None = None,
+                    lateral: dict | None = None) -> Walking:
     """Model ``name`` on the tracker of its optimal step (decision vector ``x`` under ``settings``, simulated
     as ``trajectory``), from the gait's state after a touchdown: ``gains`` (default
-    :func:`biped_jax.humanoid.tracker.gains_for`), the swing foot's ``clearance`` (m, default
-    :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two drives at the joints ``parallel`` (default
-    :data:`biped_jax.humanoid.tracker.DRIVES`)."""
+    :func:`biped_jax.humanoid.tracker.gains_for`), the lateral law's numbers ``lateral`` (fields of
+    :class:`biped_jax.humanoid.walker.WalkerParams`, default :func:`biped_jax.humanoid.tracker.lateral_for`),
+    the swing foot's ``clearance`` (m, default :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two
+    drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`)."""
     from biped_jax.humanoid import reference, tracker, walk3d
     mass_class, model = paper_model(name)
-    params = walk_params(name)
+    lateral = tracker.lateral_for(name) if lateral is None else lateral
+    unknown = sorted(set(lateral) - {f.name for f in dataclasses.fields(walk_params(name))})
+    if unknown:
+        raise ValueError(f"unknown lateral numbers {unknown}; they are fields of WalkerParams")
+    params = dataclasses.replace(walk_params(name), **lateral)
     parallel = walk3d.drive_set(mass_class, tracker.DRIVES if parallel is None else parallel)
     prog = walk3d.program(mass_class, parallel)
     gait = reference.gait_reference(x, model, settings, trajectory, mass_class)
@@ -376,7 +382,7 @@ def walk_3d(walking: Walking, trajectory, steps: int, batch: int, progress: Call
                  f", two in parallel at each {joint}" for joint in walking.parallel),
              "controller": dataclasses.asdict(params) if walking.law is walk3d.WALKER else {
                  "gains": {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()},
-                 "lateral": dataclasses.asdict(params)},
+                 "lateral": {k: float(v) for k, v in dataclasses.asdict(walking.args.params).items()}},
              "steps_after_transient": max(0, figures["steps"] - walking.transient_touchdowns),
              **figures, "gait_cost_of_transport": gait_cot}
     if entry.get("cost_of_transport") is not None:
