@@ -47,11 +47,12 @@ def optimal_step(name: str, gaits: Path):
 #: CMA-ES: each gain's unit step.
 TUNE_SCALE = {"kp": 60.0, "kd": 1.5, "kp_sw": 60.0, "kd_sw": 1.5, "kp_t": 60.0, "kd_t": 3.0, "kp_a": 10.0,
               "kd_a": 0.3, "ankle_w": 5.0, "place": 0.3, "fade": 0.1}
-#: CMA-ES over the lateral law: each number's unit step (the fields of WalkerParams it varies).
+#: CMA-ES over the lateral law: each number's unit step (the fields of WalkerParams it varies; not the
+#: start's sideways speed, which the tuner's fixed starts would not see).
 LATERAL_SCALE = {"lateral_gain": 0.03, "width": 0.015, "kp_torso": 30.0, "kd_torso": 3.0, "roll_push": 0.4,
-                 "kp_swing": 15.0, "kd_swing": 0.4, "side_speed": 0.05, "roll_lean": 0.03}
+                 "kp_swing": 15.0, "kd_swing": 0.4, "roll_lean": 0.03}
 #: Numbers that may take either sign (the others are kept positive).
-SIGNED = ("ankle_w", "place", "side_speed", "roll_lean")
+SIGNED = ("ankle_w", "place", "roll_lean")
 
 
 def evolve(base: dict, scale: dict, scores, carries: list, generations: int, population: int, sigma: float,
@@ -79,12 +80,13 @@ def evolve(base: dict, scale: dict, scores, carries: list, generations: int, pop
 
 
 def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_weight: float = 0.0,
-               drift_weight: float = 0.0):
+               drift_weight: float = 0.0, excess_weight: float = 0.5, speed_weight: float = 0.0):
     """score(args, carry): a walk of ``seconds`` s with the law's ``args`` from ``carry``: its steps within
     5 % of the gait's length and 10 % of its time, + 3 if up at the end, + its seconds up, + half its distance,
-    - half its mean |command - applied| (N m), - ``lift_weight`` times its share of samples with the stance
-    sole above 2 mm after the stance's first 30 ms (a rebound or a rocking foot), - ``drift_weight`` times
-    the pelvis's final distance from the centre line (m)."""
+    - ``excess_weight`` times its mean |command - applied| (N m, summed over the joints), - ``lift_weight``
+    times its share of samples with the stance sole above 2 mm after the stance's first 30 ms (a rebound or
+    a rocking foot), - ``drift_weight`` times the pelvis's final distance from the centre line (m),
+    - ``speed_weight`` times |its distance over its time up, over the gait's speed, - 1|."""
     prog = walk3d.program(walking.mass_class, walking.parallel)
     step, n = walk3d.stepper(prog, tracker.LAW), int(round(seconds / float(prog.mj_model.opt.timestep)))
     step_time = walking.step_time
@@ -109,18 +111,22 @@ def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_
         zero = jnp.asarray(0.0)
         (carry, up, good, distance, _, upright_steps, excess, lifted), _ = jax.lax.scan(
             body, (carry, jnp.asarray(True), zero, zero, zero, zero, zero, zero), None, length=n)
-        return (good + 3 * up + upright_steps / n * seconds + 0.5 * distance - 0.5 * excess / n
-                - lift_weight * lifted / n - drift_weight * jnp.abs(carry[0].qpos[1]))
+        speed = distance / jnp.maximum(upright_steps / n * seconds, 1e-3) * step_time / step_length
+        return (good + 3 * up + upright_steps / n * seconds + 0.5 * distance - excess_weight * excess / n
+                - lift_weight * lifted / n - drift_weight * jnp.abs(carry[0].qpos[1])
+                - speed_weight * jnp.abs(speed - 1))
 
     return score
 
 
 def tune(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,
-         step_length: float, lift_weight: float = 0.0, sigma: float = 0.3) -> tracker.Gains:
+         step_length: float, lift_weight: float = 0.0, sigma: float = 0.3, excess_weight: float = 0.5,
+         speed_weight: float = 0.0) -> tracker.Gains:
     """CMA-ES over :class:`biped_jax.humanoid.tracker.Gains` from ``walking``'s, a candidate's score its
-    :func:`walk_score` (``lift_weight``) averaged over ``carries`` (the starts); one vmapped program of
-    ``population`` walks per generation and start."""
-    score = walk_score(walking, seconds, step_length, lift_weight)
+    :func:`walk_score` (``lift_weight``, ``excess_weight``, ``speed_weight``) averaged over ``carries`` (the
+    starts); one vmapped program of ``population`` walks per generation and start."""
+    score = walk_score(walking, seconds, step_length, lift_weight, excess_weight=excess_weight,
+                       speed_weight=speed_weight)
     scores = jax.jit(jax.vmap(lambda gains, carry: score(
         dataclasses.replace(walking.args, gains=tracker.Gains(**gains)), carry), in_axes=(0, None)))
     base = {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()}
@@ -171,6 +177,10 @@ def main():
     parser.add_argument("--tune-sigma", type=float, default=0.3, help="CMA-ES's first step, in TUNE_SCALE units")
     parser.add_argument("--lift-weight", type=float, default=0.0,
                         help="the tuner's penalty on the share of samples with the stance sole lifted")
+    parser.add_argument("--excess-weight", type=float, default=0.5,
+                        help="the gains tuner's penalty on the mean |command - applied| (N m)")
+    parser.add_argument("--speed-weight", type=float, default=0.0,
+                        help="the gains tuner's penalty on the walk's relative speed error")
     parser.add_argument("--steps", type=int, default=56, help="the measured walk's steps after the transient")
     parser.add_argument("--push-batch", type=int, default=0,
                         help="walks in each of the command's two push trials (0: none)")
@@ -202,7 +212,8 @@ def main():
         walking = walk(walking.args.gains, lateral)
     if args.tune:
         gains = tune(walking, starts(walking, args.tune_starts), args.tune, args.population, args.tune_seconds,
-                     float(model.step_length), args.lift_weight, args.tune_sigma)
+                     float(model.step_length), args.lift_weight, args.tune_sigma, args.excess_weight,
+                     args.speed_weight)
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE})
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
@@ -210,8 +221,10 @@ def main():
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}
     print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)
-    save_results(args.name or f"humanoid_feedforward_{args.model}", {"model": args.model, "tune": args.tune,
-                                                                         "tune_lateral": args.tune_lateral},
+    save_results(args.name or f"humanoid_feedforward_{args.model}",
+                 {"model": args.model, "tune": args.tune, "tune_lateral": args.tune_lateral,
+                  "lift_weight": args.lift_weight, "excess_weight": args.excess_weight,
+                  "speed_weight": args.speed_weight},
                  [row], args.out)
 
 

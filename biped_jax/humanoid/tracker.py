@@ -89,17 +89,18 @@ class Gains:
 
 
 #: Each model's gains, tuned by CMA-ES over batched walks on its optimal gait (``python
-#: benchmarks/humanoid_feedforward.py --tune``; the runs in benchmarks/RESULTS.md): M4 by ``--tune 12`` from
-#: :data:`START`, then ``--tune 12 --lift-weight 20``; M2 the same, then ``--tune 10 --tune-starts 4
-#: --lift-weight 20`` (the nominal start and three disturbed ones) with the swing foot kept level.
+#: benchmarks/humanoid_feedforward.py --tune``; the runs in benchmarks/RESULTS.md): M2 by ``--tune 12`` from
+#: :data:`START`, then ``--tune 12 --lift-weight 20``, then ``--tune 10 --tune-starts 4 --lift-weight 20``
+#: (the nominal start and three disturbed ones) with the swing foot kept level; M4 the same, then on the
+#: swaying path with its :data:`LATERAL` numbers ``--tune 10 --tune-starts 4 --lift-weight 20
+#: --excess-weight 2 --speed-weight 10``.
 TUNED = {
     "M2": Gains(kp=490.5805694635744, kd=2.853429688330194, kp_sw=121.9271585160037, kd_sw=7.165147602383263,
                 kp_t=364.71156709148187, kd_t=16.714172317241516, kp_a=58.85045376089186, kd_a=3.210872815114457,
                 ankle_w=-12.520533314809185, place=-0.7586939140065748, fade=0.3616880144323132),
-    "M4": Gains(kp=532.066737845733, kd=0.4761168447127277, kp_sw=230.0750942188896,
-                kd_sw=5.584587555991759, kp_t=380.1768422872628, kd_t=14.970342741430022,
-                kp_a=78.57841635823755, kd_a=3.0130945399253846, ankle_w=-12.123244075703028,
-                place=0.5713431014477469, fade=0.34333709808633567),
+    "M4": Gains(kp=393.05578927774445, kd=0.032443151245390045, kp_sw=199.93846172030086, kd_sw=3.241155860490838,
+                kp_t=419.2989500867713, kd_t=14.820089413619886, kp_a=86.7364036679045, kd_a=3.1134169933828177,
+                ankle_w=-12.915157569033223, place=0.47776128837857523, fade=0.4603547048706853),
 }
 #: Each model's numbers of the lateral law for the swaying path (:class:`biped_jax.humanoid.walker.WalkerParams`
 #: fields over :func:`biped_jax.studies.humanoid.walk_params`'s), tuned by CMA-ES from :data:`LATERAL_START`
@@ -107,10 +108,13 @@ TUNED = {
 #: benchmarks/humanoid_feedforward.py --tune-lateral``; the runs in benchmarks/RESULTS.md).
 LATERAL = {
     "M2": {"lateral_gain": 0.1200, "width": 0.05346, "kp_torso": 27.22, "kd_torso": 11.68, "roll_push": 0.2019,
-           "kp_swing": 23.55, "kd_swing": 1.846, "side_speed": -0.00102, "roll_lean": -0.01442},
+           "kp_swing": 23.55, "kd_swing": 1.846, "roll_lean": -0.01442},
+    "M4": {"lateral_gain": 0.05073, "width": 0.06609, "kp_torso": 108.7, "kd_torso": 6.147, "roll_push": 0.6196,
+           "kp_swing": 42.69, "kd_swing": 1.021, "roll_lean": 0.01881},
 }
-#: The lateral numbers of a model without tuned ones: the walker's, its step on the hip's line (the path's
-#: width), no lean into the stance and no sideways speed at the start (the sway carries the pelvis).
+#: The lateral numbers under :data:`LATERAL`'s, and a model's without tuned ones: the walker's, its step on
+#: the hip's line (the path's width), no lean into the stance and no sideways speed at the start beyond the
+#: path's (the sway carries the pelvis).
 LATERAL_START = {"width": 0.065, "roll_lean": 0.0, "side_speed": 0.0}
 #: The gains of a model without tuned ones: a hand-tuned set (unclipped walks of M2), the tuner's start.
 START = Gains(kp=515.7, kd=0.48, kp_sw=230.4, kd_sw=6.40, kp_t=388.8, kd_t=14.66, kp_a=68.6, kd_a=3.00,
@@ -123,8 +127,8 @@ def gains_for(name: str) -> Gains:
 
 
 def lateral_for(name: str) -> dict:
-    """:data:`LATERAL` numbers of the paper's model ``name``, else :data:`LATERAL_START`."""
-    return dict(LATERAL.get(name, LATERAL_START))
+    """:data:`LATERAL` numbers of the paper's model ``name`` over :data:`LATERAL_START`."""
+    return {**LATERAL_START, **LATERAL.get(name, {})}
 
 
 @jax.tree_util.register_dataclass

@@ -281,12 +281,12 @@ def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSetting
     """Model ``name`` on the tracker of its optimal step (decision vector ``x`` under ``settings``, simulated
     as ``trajectory``), from the gait's state after a touchdown: ``gains`` (default
     :func:`biped_jax.humanoid.tracker.gains_for`), the lateral law's numbers ``lateral`` (fields of
-    :class:`biped_jax.humanoid.walker.WalkerParams`, default :func:`biped_jax.humanoid.tracker.lateral_for`),
+    :class:`biped_jax.humanoid.walker.WalkerParams`, over :func:`biped_jax.humanoid.tracker.lateral_for`'s),
     the swing foot's ``clearance`` (m, default :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two
     drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`)."""
     from biped_jax.humanoid import reference, tracker, walk3d
     mass_class, model = paper_model(name)
-    lateral = tracker.lateral_for(name) if lateral is None else lateral
+    lateral = {**tracker.lateral_for(name), **(lateral or {})}
     unknown = sorted(set(lateral) - {f.name for f in dataclasses.fields(walk_params(name))})
     if unknown:
         raise ValueError(f"unknown lateral numbers {unknown}; they are fields of WalkerParams")
