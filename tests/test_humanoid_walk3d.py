@@ -134,6 +134,8 @@ def test_the_measures_find_steps_rebounds_and_slip():
     assert figures["rebounds"] == 1
     assert [t["rebound"] for t in figures["touchdowns"]] == [False, True, False, False]
     assert figures["touchdowns"][1]["contact_s"] == pytest.approx(0.010, abs=1e-9)
+    assert figures["touchdowns"][1]["longest_loss_s"] == pytest.approx(0.005, abs=1e-9)
+    assert figures["longest_contact_loss_s"] == pytest.approx(0.005, abs=1e-9)
     assert figures["slip_max_m"] == pytest.approx(0.004, abs=1e-9)
 
 

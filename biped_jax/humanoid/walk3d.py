@@ -387,9 +387,11 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
     between the steady touchdowns, over the gait's speed), ``step_length_m`` and ``step_length_ratio``
     (mean distance along x between successive landing feet), ``step_time_s``, ``touchdowns`` (per steady
     touchdown: time, contact duration before the foot first leaves the ground again or lifts off as
-    planned, peak normal force, rebound), ``rebounds`` (landing feet that leave the ground again before
-    their planned lift-off), ``max_drive_torque_ratio`` (largest commanded |torque| over the drive line
-    at that speed: above 1 the drive saturated and gave its line), ``saturated_share``, ``slip_max_m``
+    planned, peak normal force, rebound, the longest time without contact between its first contact and
+    the next touchdown where it rebounds), ``rebounds`` (landing feet that leave the ground again before
+    their planned lift-off, however briefly), ``longest_contact_loss_s`` (the longest of those losses),
+    ``max_drive_torque_ratio`` (largest commanded |torque| over the drive line at that speed: above 1 the
+    drive saturated and gave its line), ``saturated_share``, ``slip_max_m``
     (largest travel of a stance foot in the plane during its stance, after its first 20 ms),
     ``cost_of_transport`` (positive joint work over weight x distance), ``lateral_drift_m``, ``max_yaw_rad``.
     """
@@ -412,15 +414,18 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
         left_early = bool(lost is not None and len(lost) and end < len(record.t))
         duration = ((lost[0] if left_early else end - i) - (first or 0)) * float(prog.mj_model.opt.timestep)
         rebounds += left_early and i in steady
+        longest_loss = 0.0 if first is None else longest_run(~touching[first:]) * float(prog.mj_model.opt.timestep)
         settled = min(i + 20, end - 1)
         travel = np.linalg.norm(record.feet[settled:end, foot, :2] - record.feet[settled, foot, :2], axis=-1)
         if i in steady and end < len(record.t):
             slips.append(float(travel.max(initial=0.0)))
         events.append({"t_s": float(record.t[i]), "foot": "lr"[foot], "contact_s": float(duration),
-                       "peak_normal_force_N": float(normal[i:end, foot].max(initial=0.0)), "rebound": left_early})
+                       "peak_normal_force_N": float(normal[i:end, foot].max(initial=0.0)), "rebound": left_early,
+                       "longest_loss_s": float(longest_loss) if left_early else 0.0})
     steady_events = [e for e, i in zip(events, landings) if i in steady]
     figures = {"steps": int(len(landings)), "fell": fell, "steady_touchdowns": int(len(steady)),
-               "touchdowns": steady_events, "rebounds": int(rebounds)}
+               "touchdowns": steady_events, "rebounds": int(rebounds),
+               "longest_contact_loss_s": max((e["longest_loss_s"] for e in steady_events), default=0.0)}
     if len(steady) >= 2:
         a, b = steady[0], steady[-1]
         span = float(record.t[b] - record.t[a])
@@ -445,6 +450,12 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
         })
     return figures
 
+
+
+def longest_run(flags: np.ndarray) -> int:
+    """The length of the longest run of True in ``flags`` (1-D), samples."""
+    edges = np.diff(np.concatenate([[0], np.asarray(flags, dtype=int), [0]]))
+    return int((np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)).max(initial=0))
 
 
 @functools.lru_cache(maxsize=None)
