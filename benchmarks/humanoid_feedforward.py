@@ -80,13 +80,15 @@ def evolve(base: dict, scale: dict, scores, carries: list, generations: int, pop
 
 
 def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_weight: float = 0.0,
-               drift_weight: float = 0.0, excess_weight: float = 0.5, speed_weight: float = 0.0):
+               drift_weight: float = 0.0, excess_weight: float = 0.5, speed_weight: float = 0.0,
+               lift_height: float = 0.002):
     """score(args, carry): a walk of ``seconds`` s with the law's ``args`` from ``carry``: its steps within
     5 % of the gait's length and 10 % of its time, + 3 if up at the end, + its seconds up, + half its distance,
     - ``excess_weight`` times its mean |command - applied| (N m, summed over the joints), - ``lift_weight``
-    times its share of samples with the stance sole above 2 mm after the stance's first 30 ms (a rebound or
-    a rocking foot), - ``drift_weight`` times the pelvis's final distance from the centre line (m),
-    - ``speed_weight`` times |its distance over its time up, over the gait's speed, - 1|."""
+    times its share of samples with the stance sole above ``lift_height`` m after the stance's first 30 ms (a
+    rebound or a rocking foot; 0: any loss of contact), - ``drift_weight`` times the pelvis's final distance
+    from the centre line (m), - ``speed_weight`` times |its distance over its time up, over the gait's speed,
+    - 1|."""
     prog = walk3d.program(walking.mass_class, walking.parallel)
     step, n = walk3d.stepper(prog, tracker.LAW), int(round(seconds / float(prog.mj_model.opt.timestep)))
     step_time = walking.step_time
@@ -106,7 +108,7 @@ def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_
             sole = walker.sole_heights(prog.legs, data)[memory.stance]
             return (carry, up, good, distance, jnp.where(landed, data.time, last), upright_steps + up,
                     excess + jnp.where(up, jnp.sum(jnp.abs(command - applied)), 0.0),
-                    lifted + (up & (memory.time > 0.03) & (sole > 0.002))), None
+                    lifted + (up & (memory.time > 0.03) & (sole > lift_height))), None
 
         zero = jnp.asarray(0.0)
         (carry, up, good, distance, _, upright_steps, excess, lifted), _ = jax.lax.scan(
@@ -121,12 +123,12 @@ def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_
 
 def tune(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,
          step_length: float, lift_weight: float = 0.0, sigma: float = 0.3, excess_weight: float = 0.5,
-         speed_weight: float = 0.0) -> tracker.Gains:
+         speed_weight: float = 0.0, lift_height: float = 0.002) -> tracker.Gains:
     """CMA-ES over :class:`biped_jax.humanoid.tracker.Gains` from ``walking``'s, a candidate's score its
-    :func:`walk_score` (``lift_weight``, ``excess_weight``, ``speed_weight``) averaged over ``carries`` (the
-    starts); one vmapped program of ``population`` walks per generation and start."""
+    :func:`walk_score` (``lift_weight``, ``excess_weight``, ``speed_weight``, ``lift_height``) averaged over
+    ``carries`` (the starts); one vmapped program of ``population`` walks per generation and start."""
     score = walk_score(walking, seconds, step_length, lift_weight, excess_weight=excess_weight,
-                       speed_weight=speed_weight)
+                       speed_weight=speed_weight, lift_height=lift_height)
     scores = jax.jit(jax.vmap(lambda gains, carry: score(
         dataclasses.replace(walking.args, gains=tracker.Gains(**gains)), carry), in_axes=(0, None)))
     base = {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()}
@@ -177,6 +179,8 @@ def main():
     parser.add_argument("--tune-sigma", type=float, default=0.3, help="CMA-ES's first step, in TUNE_SCALE units")
     parser.add_argument("--lift-weight", type=float, default=0.0,
                         help="the tuner's penalty on the share of samples with the stance sole lifted")
+    parser.add_argument("--lift-height", type=float, default=0.002,
+                        help="the stance sole's height above which the tuner counts it lifted, m (0: any gap)")
     parser.add_argument("--excess-weight", type=float, default=0.5,
                         help="the gains tuner's penalty on the mean |command - applied| (N m)")
     parser.add_argument("--speed-weight", type=float, default=0.0,
@@ -213,7 +217,7 @@ def main():
     if args.tune:
         gains = tune(walking, starts(walking, args.tune_starts), args.tune, args.population, args.tune_seconds,
                      float(model.step_length), args.lift_weight, args.tune_sigma, args.excess_weight,
-                     args.speed_weight)
+                     args.speed_weight, args.lift_height)
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE})
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
@@ -223,7 +227,8 @@ def main():
     print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)
     save_results(args.name or f"humanoid_feedforward_{args.model}",
                  {"model": args.model, "tune": args.tune, "tune_lateral": args.tune_lateral,
-                  "lift_weight": args.lift_weight, "excess_weight": args.excess_weight,
+                  "lift_weight": args.lift_weight, "lift_height": args.lift_height,
+                  "excess_weight": args.excess_weight,
                   "speed_weight": args.speed_weight},
                  [row], args.out)
 
