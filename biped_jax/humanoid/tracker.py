@@ -6,11 +6,12 @@ The law (:data:`LAW`, a :class:`biped_jax.humanoid.walk3d.Law`), per physics ste
 - **Path and feed-forward** (:func:`path_3d`). The study's optimal step is put on the 3D humanoid with leg l
   standing, its foot flat and still, the swing foot level and lifted to ``clearance`` mid-step
   (:func:`biped_jax.humanoid.reference.clearance_offset`), the pelvis swaying over the stance foot as a
-  linear inverted pendulum through the hip rolls (:func:`lateral_sway`): every degree of freedom's position,
-  velocity and acceleration on the gait's own grid. Floating-base inverse dynamics of the walk's model with the stance
-  foot's wrench alone moving the base (:func:`biped_jax.humanoid.free_base.single_support`) give the joint
-  torques that make the humanoid itself follow it: its feet, arms and the gearheads' reflected inertia,
-  which the planar optimum does not carry, included.
+  linear inverted pendulum, the feet kept level and in place (:func:`lateral_sway`): every degree of
+  freedom's position, velocity and acceleration on the gait's own grid. Floating-base inverse dynamics of
+  the walk's model with the stance foot's wrench alone moving the base
+  (:func:`biped_jax.humanoid.free_base.single_support`) give the joint torques that make the humanoid
+  itself follow it: its feet, arms and the gearheads' reflected inertia, which the planar optimum does not
+  carry, included.
 - **Phase.** s in [0, 1] from the stance angle theta = torso pitch + stance hip + stance knee, mapped from
   [theta at touchdown, theta at the step's end] onto the optimal step's (hybrid-zero-dynamics phasing,
   :func:`biped_jax.humanoid.controller.phase_of`): the legs follow the stance leg's progress, not a clock.
@@ -56,7 +57,6 @@ TOUCHDOWN_PHASE, TOUCHDOWN_AHEAD, SHORTEST_STEP = 0.9, 0.05, 0.5
 DRIVES = ("hip_roll",)
 #: A leg's roll joints in :data:`biped_jax.humanoid.free_base.LEG_JOINTS`: hip roll, ankle roll.
 ROLLS = (1, 5)
-
 
 
 @jax.tree_util.register_dataclass
