@@ -130,11 +130,12 @@ def tune(walking: study.Walking, carries: list, generations: int, population: in
     score = walk_score(walking, seconds, step_length, lift_weight, excess_weight=excess_weight,
                        speed_weight=speed_weight, lift_height=lift_height)
     scores = jax.jit(jax.vmap(lambda gains, carry: score(
-        dataclasses.replace(walking.args, gains=tracker.Gains(**gains)), carry), in_axes=(0, None)))
+        dataclasses.replace(walking.args, gains=dataclasses.replace(walking.args.gains, **gains)), carry),
+        in_axes=(0, None)))
     base = {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()}
     best = evolve(base, TUNE_SCALE, scores, carries, generations, population, sigma,
                   clip=lambda g: {**g, "fade": min(max(g["fade"], 0.05), 0.5)})
-    return tracker.Gains(**best)
+    return tracker.Gains(**best)  # yaw_ff (not tuned) kept from walking's
 
 
 def tune_lateral(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,

@@ -72,24 +72,30 @@ def test_the_pelvis_sways_over_the_stance_foot_as_a_linear_inverted_pendulum(wal
     np.testing.assert_allclose(qpos[:, 1], expected, rtol=0.01, atol=2e-4)
 
 
-def test_the_path_roll_torques_are_mirrored_when_leg_r_stands(walkings):
-    """Adding torques to the path's hip- and ankle-roll columns adds them to the command as they are while
-    leg l stands, and with their sign flipped on the other leg's joints while leg r stands (the gait
-    mirrored about the sagittal plane); the other joints' commands do not change."""
+def test_the_path_roll_and_yaw_torques_are_mirrored_when_leg_r_stands(walkings):
+    """Adding torques to the path's hip-yaw, hip-roll and ankle-roll columns adds them to the command (the
+    yaw's times ``yaw_ff``) as they are while leg l stands, and with their sign flipped on the other leg's
+    joints while leg r stands (the gait mirrored about the sagittal plane); the other joints' commands do
+    not change."""
     walking = walkings["M2"]
     prog = walk3d.program(walking.mass_class, walking.parallel)
     layout, args = prog.layout, walking.args
-    rolls = [layout.legs[side][joint] for side in (0, 1) for joint in tracker.ROLLS]
+    lateral = (tracker.HIP_YAW, *tracker.ROLLS)
+    joints = [layout.legs[side][joint] for side in (0, 1) for joint in lateral]
     extra = np.zeros(args.path.torque.shape[1])
-    extra[rolls] = [0.7, -0.3, 1.1, 0.4]
+    extra[joints] = [0.5, 0.7, -0.3, -0.9, 1.1, 0.4]
+    share = np.ones_like(extra)
+    share[[layout.legs[side][tracker.HIP_YAW] for side in (0, 1)]] = float(args.gains.yaw_ff)
+    assert float(args.gains.yaw_ff) > 0.0
     more = dataclasses.replace(args, path=dataclasses.replace(args.path, torque=args.path.torque + extra))
     data, state = walking.start(*walking.start_state)
     swapped = dataclasses.replace(state, memory=dataclasses.replace(state.memory, stance=jnp.asarray(1)))
-    for standing, mirrored in ((state, extra), (swapped, np.zeros_like(extra))):
+    for standing, mirrored in ((state, share * extra), (swapped, np.zeros_like(extra))):
         if standing is swapped:
             for side in (0, 1):
-                for joint in tracker.ROLLS:
-                    mirrored[layout.legs[1 - side][joint]] = -extra[layout.legs[side][joint]]
+                for joint in lateral:
+                    k = layout.legs[side][joint]
+                    mirrored[layout.legs[1 - side][joint]] = -share[k] * extra[k]
         change = np.asarray(tracker.control(more, prog, data, standing)[0]
                             - tracker.control(args, prog, data, standing)[0])
         np.testing.assert_allclose(change, mirrored, atol=1e-9)

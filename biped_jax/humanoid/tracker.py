@@ -24,8 +24,9 @@ The law (:data:`LAW`, a :class:`biped_jax.humanoid.walk3d.Law`), per physics ste
   target moves ``place`` rad per m/s of pelvis speed above the path's, late in the swing.
 - **Lateral, yaw, arms**: the walker's law (:func:`biped_jax.humanoid.walker.control`: hip roll by the foot
   placement's lateral term, torso roll and yaw through the stance hip, ankle roll keeping the foot level),
-  with its numbers for the swaying path (:data:`LATERAL`), plus the path's hip- and ankle-roll torques as
-  feed-forward (mirrored when leg r stands).
+  with its numbers for the swaying path (:data:`LATERAL`), plus the path's hip- and ankle-roll torques and
+  ``yaw_ff`` of its hip-yaw torques as feed-forward (mirrored when leg r stands; without the yaw's the 12 kg
+  walk settles 0.1 rad off its heading and drifts sideways).
 - **Touchdown**: the swing sole within 1 mm of the ground after s = :data:`TOUCHDOWN_PHASE`, the swing foot
   :data:`TOUCHDOWN_AHEAD` ahead of the stance foot and :data:`SHORTEST_STEP` of the step time after the
   last touchdown.
@@ -57,6 +58,8 @@ TOUCHDOWN_PHASE, TOUCHDOWN_AHEAD, SHORTEST_STEP = 0.9, 0.05, 0.5
 DRIVES = ("hip_roll",)
 #: A leg's roll joints in :data:`biped_jax.humanoid.free_base.LEG_JOINTS`: hip roll, ankle roll.
 ROLLS = (1, 5)
+#: A leg's hip yaw in :data:`biped_jax.humanoid.free_base.LEG_JOINTS`.
+HIP_YAW = 0
 
 
 @jax.tree_util.register_dataclass
@@ -65,7 +68,7 @@ class Gains:
     """The law's gains (N m/rad, N m s/rad unless said): stance knee (kp, kd), swing leg (kp_sw, kd_sw),
     torso pitch through the stance hip (kp_t, kd_t), ankles' pitch (kp_a, kd_a), ankle_w (N m s/rad on
     the stance angle's rate), place (rad of swing hip per m/s), fade (share of the step over which the
-    touchdown's offsets fade)."""
+    touchdown's offsets fade), yaw_ff (the share of the path's hip-yaw torques fed forward, 0-1)."""
 
     kp: float
     kd: float
@@ -78,6 +81,7 @@ class Gains:
     ankle_w: float
     place: float
     fade: float
+    yaw_ff: float = 0.0
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -97,7 +101,7 @@ class Gains:
 TUNED = {
     "M2": Gains(kp=490.5805694635744, kd=2.853429688330194, kp_sw=121.9271585160037, kd_sw=7.165147602383263,
                 kp_t=364.71156709148187, kd_t=16.714172317241516, kp_a=58.85045376089186, kd_a=3.210872815114457,
-                ankle_w=-12.520533314809185, place=-0.7586939140065748, fade=0.3616880144323132),
+                ankle_w=-12.520533314809185, place=-0.7586939140065748, fade=0.3616880144323132, yaw_ff=1.0),
     "M4": Gains(kp=393.05578927774445, kd=0.032443151245390045, kp_sw=199.93846172030086, kd_sw=3.241155860490838,
                 kp_t=419.2989500867713, kd_t=14.820089413619886, kp_a=86.7364036679045, kd_a=3.1134169933828177,
                 ankle_w=-12.915157569033223, place=0.47776128837857523, fade=0.4603547048706853),
@@ -347,11 +351,12 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
     theta_rate = pitch_rate + qd[stance[2]] + qd[stance[3]]
     pace = jnp.interp(s, gait.phase, gait.stance_angle_slope) / gait.step_time - theta_rate
     command = command.at[stance[4]].add(jnp.clip(gains.ankle_w * pace, -ANKLE_FEEDBACK_LIMIT, ANKLE_FEEDBACK_LIMIT))
-    # the path's roll torques on top of the lateral law, mirrored (sign flipped) when leg r stands
+    # the path's roll (and yaw_ff of its hip-yaw) torques on top of the lateral law, mirrored (sign flipped)
+    # when leg r stands
     mirror = jnp.where(state.stance == 0, 1.0, -1.0)
     for side, leg in ((0, stance), (1, swing)):
-        for joint in ROLLS:
-            command = command.at[leg[joint]].add(mirror * now.torque[layout.legs[side][joint]])
+        for joint, share in ((ROLLS[0], 1.0), (ROLLS[1], 1.0), (HIP_YAW, gains.yaw_ff)):
+            command = command.at[leg[joint]].add(share * mirror * now.torque[layout.legs[side][joint]])
     return command, s
 
 
