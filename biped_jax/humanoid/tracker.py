@@ -300,9 +300,10 @@ def lateral_sway(prog: walk3d.Program, qpos: np.ndarray, qvel: np.ndarray, t: np
                                        rotation[0, 1] - rotation[1, 0]])  # the rotation back to level
                 error = np.concatenate([place - now, tilt])[rows]
                 if np.max(np.abs(error)) < 1e-13:
-                    break
+                    break  # the Jacobian is the converged pose's
                 qpos[i, joints] += np.linalg.solve(jacobian[np.ix_(rows, dofs)], error)
-            foot_jacobian(i, foot)
+            else:
+                foot_jacobian(i, foot)
             wanted = np.concatenate([velocity, np.zeros(3)]) - jacobian @ qvel[i]
             qvel[i, dofs] += np.linalg.solve(jacobian[np.ix_(rows, dofs)], wanted[rows])
     return qpos, qvel

@@ -286,11 +286,11 @@ def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSetting
     drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`)."""
     from biped_jax.humanoid import reference, tracker, walk3d
     mass_class, model = paper_model(name)
-    lateral = {**tracker.lateral_for(name), **(lateral or {})}
-    unknown = sorted(set(lateral) - {f.name for f in dataclasses.fields(walk_params(name))})
+    params, lateral = walk_params(name), {**tracker.lateral_for(name), **(lateral or {})}
+    unknown = sorted(set(lateral) - {f.name for f in dataclasses.fields(params)})
     if unknown:
         raise ValueError(f"unknown lateral numbers {unknown}; they are fields of WalkerParams")
-    params = dataclasses.replace(walk_params(name), **lateral)
+    params = dataclasses.replace(params, **lateral)
     parallel = walk3d.drive_set(mass_class, tracker.DRIVES if parallel is None else parallel)
     prog = walk3d.program(mass_class, parallel)
     gait = reference.gait_reference(x, model, settings, trajectory, mass_class)
