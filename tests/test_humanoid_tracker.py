@@ -137,6 +137,26 @@ def test_on_the_path_the_law_commands_the_inverse_dynamics_plus_pd(walkings):
     np.testing.assert_allclose(change, expected, atol=1e-9)
 
 
+def test_the_damping_ramps_in_over_the_impact_time_after_a_touchdown(walkings):
+    """A swing knee 0.1 rad/s faster than the path changes the swing knee's command by -kd_sw 0.1 and the swing
+    ankle's (which keeps its foot level) by -kd_a 0.1, times t / impact in the first ``impact`` s after the
+    touchdown: nothing at the touchdown, half halfway, all after it."""
+    walking = walkings["M2"]
+    prog = walk3d.program(walking.mass_class, walking.parallel)
+    layout, args = prog.layout, walking.args
+    impact = float(args.gains.impact)
+    assert impact > 0.0
+    data, state = walking.start(*walking.start_state)
+    knee, ankle = layout.legs[1][3], layout.legs[1][4]
+    faster = data.replace(qvel=data.qvel.at[layout.qvel[knee]].add(0.1))
+    for share in (0.0, 0.5, 1.0, 3.0):
+        later = dataclasses.replace(state, memory=dataclasses.replace(state.memory, time=jnp.asarray(share * impact)))
+        change = np.asarray(tracker.control(args, prog, faster, later)[0] - tracker.control(args, prog, data, later)[0])
+        expected = np.zeros_like(change)
+        expected[[knee, ankle]] = -min(share, 1.0) * 0.1 * np.array([float(args.gains.kd_sw), float(args.gains.kd_a)])
+        np.testing.assert_allclose(change, expected, atol=1e-9)
+
+
 def test_one_compiled_walk_lands_every_gait_at_its_step_time(walkings):
     """M2's and M1's first steps (0.36 s and 0.48 s; M1 on the untuned :data:`tracker.START` gains) land
     within 10 % of their step time, upright, from one compiled program; a sideways push (+y) while foot r
@@ -163,6 +183,8 @@ def test_bad_gains_are_named():
         dataclasses.replace(tracker.START, fade=0.0)
     with pytest.raises(ValueError, match="kp"):
         dataclasses.replace(tracker.START, kp=float("nan"))
+    with pytest.raises(ValueError, match="impact"):
+        dataclasses.replace(tracker.START, impact=-0.01)
 
 
 def test_unknown_lateral_numbers_are_named():
