@@ -105,8 +105,8 @@ class Gains:
 #: swaying path with its :data:`LATERAL` numbers ``--tune 10 --tune-starts 4 --lift-weight 20
 #: --excess-weight 2 --speed-weight 10``, and once more so (on another run of ``biped-jax reproduce``, whose
 #: M4 gait the earlier gains walked only three steps from the nominal start). M2's ``impact`` was chosen from
-#: walks at 0.01-0.07 s (its largest command fell from 7.5 to 2.7 times the drive's line); M4 has none
-#: (without its torso's damping at the impact it falls).
+#: walks at 0.01-0.07 s (its largest command fell from 7.6 to 2.7 times the drive's line); M4 has none (its
+#: earlier gains with the damping ramped over 40 ms fell at the eleventh step).
 TUNED = {
     "M2": Gains(kp=490.5805694635744, kd=2.853429688330194, kp_sw=121.9271585160037, kd_sw=7.165147602383263,
                 kp_t=364.71156709148187, kd_t=16.714172317241516, kp_a=58.85045376089186, kd_a=3.210872815114457,
