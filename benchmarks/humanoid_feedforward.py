@@ -135,7 +135,7 @@ def tune(walking: study.Walking, carries: list, generations: int, population: in
     base = {k: float(v) for k, v in dataclasses.asdict(walking.args.gains).items()}
     best = evolve(base, TUNE_SCALE, scores, carries, generations, population, sigma,
                   clip=lambda g: {**g, "fade": min(max(g["fade"], 0.05), 0.5)})
-    return tracker.Gains(**best)  # yaw_ff (not tuned) kept from walking's
+    return tracker.Gains(**best)  # yaw_ff and impact (not tuned) kept from walking's
 
 
 def tune_lateral(walking: study.Walking, carries: list, generations: int, population: int, seconds: float,
