@@ -165,7 +165,9 @@ def _walk_3d_line(name: str, walk: dict) -> str:
         "fell" if walk["fell"] else "did not fall")
     if "speed_ratio" in walk:
         line += (f"; {walk['speed_mps']:.3f} m/s ({walk['speed_ratio']:.0%} of the gait's), step "
-                 f"{walk['step_length_m']:.3f} m ({walk['step_length_ratio']:.0%}), {walk['rebounds']} rebounds, "
+                 f"{walk['step_length_m']:.3f} m ({walk['step_length_ratio']:.0%}), {walk['rebounds']} rebounds "
+                 f"({walk['contact_losses']} stance feet losing the ground's force for up to "
+                 f"{1e3 * walk['longest_contact_loss_s']:.0f} ms), "
                  f"slip {1e3 * walk['slip_max_m']:.1f} mm, torque up to {walk['max_drive_torque_ratio']:.2f}x the "
                  f"drive line, cost of transport {walk['cost_of_transport']:.3f} (optimal step "
                  f"{walk['gait_cost_of_transport']:.3f})")

@@ -100,21 +100,24 @@ def test_walks_of_other_gaits_and_batch_members_share_one_program(walks):
     assert walk3d._survivor("12kg", (), walk3d.WALKER, 400)._cache_size() == 1
 
 
-def _record(stance, feet, force, qpos=None):
+def _record(stance, feet, force, qpos=None, soles=None):
     n = len(stance)
     qpos = np.tile(np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0] + [0.0] * 16), (n, 1)) if qpos is None else qpos
+    soles = np.zeros((n, 2)) if soles is None else soles
     return walk3d.Walk(t=(np.arange(n) + 1) * 1e-3, qpos=qpos, qvel=np.zeros((n, 22)), command=np.zeros((n, 16)),
                        applied=np.zeros((n, 16)), stance=np.asarray(stance), feet=np.asarray(feet),
-                       foot_force=np.asarray(force))
+                       foot_force=np.asarray(force), soles=np.asarray(soles))
 
 
 def test_the_measures_find_steps_rebounds_and_slip():
     """A made-up record: four steps of 0.2 s at 0.5 m/s, steps of 0.1 m; at the second landing the foot
-    leaves the ground for 5 ms (a rebound), and a stance foot slides 4 mm."""
+    leaves the ground for 5 ms, rising 2 mm (a rebound); at the third the ground's force vanishes for 1 ms
+    with the sole still sunk 0.03 mm into it (a contact loss, no rebound); a stance foot slides 4 mm."""
     n, step = 1000, 200
     stance = (np.arange(n) // step) % 2
     feet = np.zeros((n, 2, 3))
     force = np.zeros((n, 2, 3))
+    soles = np.full((n, 2), 0.02)  # the swing sole 2 cm up
     qpos = np.tile(np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0] + [0.0] * 16), (n, 1))
     qpos[:, 0] = 0.5 * (np.arange(n) + 1) * 1e-3
     for k in range(n // step):
@@ -122,19 +125,28 @@ def test_the_measures_find_steps_rebounds_and_slip():
         foot = k % 2
         feet[span, foot, 0] = 0.1 * k
         force[span, foot, 2] = 120.0
-    force[2 * step + 10:2 * step + 15, 0, 2] = 0.0  # the third landing (foot l) leaves the ground
+        soles[span, foot] = -5e-5  # the stance sole sunk 0.05 mm
+    force[2 * step + 10:2 * step + 15, 0, 2] = 0.0  # the third landing (foot l) leaves the ground ...
+    soles[2 * step + 10:2 * step + 15, 0] = np.linspace(5e-4, 2e-3, 5)  # ... rising 2 mm
+    force[3 * step + 80, 1, 2] = 0.0  # the fourth landing's force gap: the sole stays in the ground
+    soles[3 * step + 80, 1] = -3e-5
     feet[3 * step + 50:4 * step, 1, 0] += 0.004  # foot r slides 4 mm in its stance
     params = dataclasses.replace(walker.WalkerParams(), ramp=0.05, step_time=0.2)
-    figures = walk3d.measures(_record(stance, feet, force, qpos), "12kg", params, gait_speed=0.5,
+    figures = walk3d.measures(_record(stance, feet, force, qpos, soles), "12kg", params, gait_speed=0.5,
                               gait_step_length=0.1, steady_after=0.0)
     assert figures["steps"] == 4 and not figures["fell"]
     assert figures["speed_ratio"] == pytest.approx(1.0, abs=1e-9)
     assert figures["step_length_ratio"] == pytest.approx(1.0, abs=1e-9)
     assert figures["step_time_s"] == pytest.approx(0.2, abs=1e-9)
-    assert figures["rebounds"] == 1
+    assert figures["rebounds"] == 1 and figures["contact_losses"] == 2
     assert [t["rebound"] for t in figures["touchdowns"]] == [False, True, False, False]
+    assert [t["contact_lost"] for t in figures["touchdowns"]] == [False, True, True, False]
+    assert figures["touchdowns"][1]["highest_sole_m"] == pytest.approx(2e-3)
+    assert figures["touchdowns"][2]["highest_sole_m"] == pytest.approx(-3e-5)
+    assert figures["highest_stance_sole_m"] == pytest.approx(2e-3)
     assert figures["touchdowns"][1]["contact_s"] == pytest.approx(0.010, abs=1e-9)
     assert figures["touchdowns"][1]["longest_loss_s"] == pytest.approx(0.005, abs=1e-9)
+    assert figures["touchdowns"][2]["longest_loss_s"] == pytest.approx(0.001, abs=1e-9)
     assert figures["longest_contact_loss_s"] == pytest.approx(0.005, abs=1e-9)
     assert figures["slip_max_m"] == pytest.approx(0.004, abs=1e-9)
 

@@ -37,6 +37,12 @@ SOLVER_ITERATIONS, LINE_SEARCH_ITERATIONS = 8, 8
 FALL_HEIGHT, FALL_TILT = 0.18, 0.6
 #: A foot is in contact while the ground pushes on it with more than this, N.
 CONTACT_FORCE = 1.0
+#: A landing foot rebounds when its sole's lowest corner rises more than this above the ground, m, after its
+#: first contact and before its planned lift-off: twice the depth to which a stance sole sinks into MuJoCo's
+#: soft contact (about 0.05 mm). The ground's force alone is no test of that: mid-stance it drops to zero
+#: for single physics steps with the sole still in the ground (measured on the tracker's walks: the sole at
+#: -0.05 to +0.003 mm in those steps), which :func:`measures` counts apart as contact losses.
+REBOUND_HEIGHT = 1e-4
 #: Walks per call of the batched program (:func:`survive`): a larger batch is run in calls of this many.
 #: A vmapped batch of 64 walks hangs XLA's CPU runtime in this version (jax 0.10.2: no progress, every
 #: thread waiting, measured; 48 runs), so 64 runs are two calls of one compiled program.
@@ -249,7 +255,8 @@ class Walk:
       gave (the command clipped to their line at the joint's speed), (N, 16), N m.
       stance: the supporting leg during the step (0 = l, 1 = r), (N,). feet: foot body origins after the
       step (l, r), (N, 2, 3), m. foot_force: the ground's force on each foot during the step, (N, 2, 3),
-      N (world frame).
+      N (world frame). soles: the height of each sole's lowest corner above the ground where the step's
+      contacts were found (l, r), (N, 2), m (negative: sunk into the soft contact).
     """
 
     t: np.ndarray
@@ -260,6 +267,7 @@ class Walk:
     stance: np.ndarray
     feet: np.ndarray
     foot_force: np.ndarray
+    soles: np.ndarray
 
 
 def ground_forces(prog: Program, data) -> jax.Array:
@@ -288,7 +296,8 @@ def _recorder(mass_class: str, parallel: tuple[str, ...], law: Law):
         carry, (command, applied) = step(args, push, carry)
         data = carry[0]
         return carry, Walk(t=data.time, qpos=data.qpos, qvel=data.qvel, command=command, applied=applied,
-                           stance=stance, feet=data.xpos[feet], foot_force=ground_forces(prog, data))
+                           stance=stance, feet=data.xpos[feet], foot_force=ground_forces(prog, data),
+                           soles=walker.sole_heights(prog.legs, data))
 
     @jax.jit
     def advance(args, push, carry):
@@ -386,10 +395,13 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
     Keys: ``steps`` (touchdowns), ``fell``, ``speed_mps`` and ``speed_ratio`` (pelvis travel over time
     between the steady touchdowns, over the gait's speed), ``step_length_m`` and ``step_length_ratio``
     (mean distance along x between successive landing feet), ``step_time_s``, ``touchdowns`` (per steady
-    touchdown: time, contact duration before the foot first leaves the ground again or lifts off as
-    planned, peak normal force, rebound, the longest time without contact between its first contact and
-    the next touchdown where it rebounds), ``rebounds`` (landing feet that leave the ground again before
-    their planned lift-off, however briefly), ``longest_contact_loss_s`` (the longest of those losses),
+    touchdown: time, contact duration before the ground's force on the foot first vanishes again or it
+    lifts off as planned, peak normal force, the sole's highest point after its first contact, rebound,
+    contact lost, the longest time without force between its first contact and the next touchdown where
+    the force vanishes), ``rebounds`` (landing feet whose sole rises more than :data:`REBOUND_HEIGHT` off
+    the ground before their planned lift-off), ``contact_losses`` (landing feet on which the ground's force
+    vanishes before then, however briefly), ``longest_contact_loss_s`` (the longest of those losses),
+    ``highest_stance_sole_m`` (the highest a sole rose after its first contact, over the touchdowns),
     ``max_drive_torque_ratio`` (largest commanded |torque| over the drive line at that speed: above 1 the
     drive saturated and gave its line), ``saturated_share``, ``slip_max_m``
     (largest travel of a stance foot in the plane during its stance, after its first 20 ms),
@@ -404,7 +416,7 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
     joint_speed = record.qvel[:, list(layout.qvel)]
     ratio = drive_ratio(prog.drives, record.command, joint_speed)
     normal = record.foot_force[..., 2]
-    events, rebounds, slips = [], 0, []
+    events, rebounds, losses, slips = [], 0, 0, []
     for k, i in enumerate(landings):
         foot = int(record.stance[i])  # the landing foot is the new stance
         end = landings[k + 1] if k + 1 < len(landings) else len(record.t)
@@ -412,20 +424,26 @@ def measures(record: Walk, mass_class: str, params: walker.WalkerParams, gait_sp
         first = int(np.argmax(touching)) if touching.any() else None
         lost = None if first is None else (np.flatnonzero(~touching[first:]) + first)
         left_early = bool(lost is not None and len(lost) and end < len(record.t))
+        highest = None if first is None else float(record.soles[i + first:end, foot].max())
+        rebounded = bool(highest is not None and highest > REBOUND_HEIGHT and end < len(record.t))
         duration = ((lost[0] if left_early else end - i) - (first or 0)) * float(prog.mj_model.opt.timestep)
-        rebounds += left_early and i in steady
+        rebounds += rebounded and i in steady
+        losses += left_early and i in steady
         longest_loss = 0.0 if first is None else longest_run(~touching[first:]) * float(prog.mj_model.opt.timestep)
         settled = min(i + 20, end - 1)
         travel = np.linalg.norm(record.feet[settled:end, foot, :2] - record.feet[settled, foot, :2], axis=-1)
         if i in steady and end < len(record.t):
             slips.append(float(travel.max(initial=0.0)))
         events.append({"t_s": float(record.t[i]), "foot": "lr"[foot], "contact_s": float(duration),
-                       "peak_normal_force_N": float(normal[i:end, foot].max(initial=0.0)), "rebound": left_early,
+                       "peak_normal_force_N": float(normal[i:end, foot].max(initial=0.0)),
+                       "highest_sole_m": highest, "rebound": rebounded, "contact_lost": left_early,
                        "longest_loss_s": float(longest_loss) if left_early else 0.0})
     steady_events = [e for e, i in zip(events, landings) if i in steady]
     figures = {"steps": int(len(landings)), "fell": fell, "steady_touchdowns": int(len(steady)),
-               "touchdowns": steady_events, "rebounds": int(rebounds),
-               "longest_contact_loss_s": max((e["longest_loss_s"] for e in steady_events), default=0.0)}
+               "touchdowns": steady_events, "rebounds": int(rebounds), "contact_losses": int(losses),
+               "longest_contact_loss_s": max((e["longest_loss_s"] for e in steady_events), default=0.0),
+               "highest_stance_sole_m": max((e["highest_sole_m"] for e in steady_events
+                                             if e["highest_sole_m"] is not None), default=None)}
     if len(steady) >= 2:
         a, b = steady[0], steady[-1]
         span = float(record.t[b] - record.t[a])

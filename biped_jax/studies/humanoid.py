@@ -277,13 +277,16 @@ def walker_walking(name: str) -> Walking:
 
 def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory,
                     gains=None, clearance: float | None = None, parallel: tuple[str, ...] | None = None,
-                    lateral: dict | None = None) -> Walking:
+                    lateral: dict | None = None, path=None) -> Walking:
     """Model ``name`` on the tracker of its optimal step (decision vector ``x`` under ``settings``, simulated
     as ``trajectory``), from the gait's state after a touchdown: ``gains`` (default
     :func:`biped_jax.humanoid.tracker.gains_for`), the lateral law's numbers ``lateral`` (fields of
     :class:`biped_jax.humanoid.walker.WalkerParams`, over :func:`biped_jax.humanoid.tracker.lateral_for`'s),
     the swing foot's ``clearance`` (m, default :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two
-    drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`)."""
+    drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`). ``path``: the
+    :class:`biped_jax.humanoid.tracker.Path3D` of an earlier call with the same step, clearance and drives
+    (its inverse dynamics take 15-25 s on a 2-core CPU and depend on neither the gains nor the lateral
+    numbers), else computed."""
     from biped_jax.humanoid import reference, tracker, walk3d
     mass_class, model = paper_model(name)
     params, lateral = walk_params(name), {**tracker.lateral_for(name), **(lateral or {})}
@@ -294,8 +297,9 @@ def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSetting
     parallel = walk3d.drive_set(mass_class, tracker.DRIVES if parallel is None else parallel)
     prog = walk3d.program(mass_class, parallel)
     gait = reference.gait_reference(x, model, settings, trajectory, mass_class)
-    path = tracker.path_3d(prog, model, trajectory, mass_class,
-                           reference.SWING_CLEARANCE if clearance is None else clearance)
+    if path is None:
+        path = tracker.path_3d(prog, model, trajectory, mass_class,
+                               reference.SWING_CLEARANCE if clearance is None else clearance)
     args = tracker.TrackerArgs(tracker.gains_for(name) if gains is None else gains, path, gait, params)
     return Walking(name, tracker.LAW, walk3d.fixed_arrays(args), mass_class, parallel,
                    tracker.start_state(path, params), lambda q, v: tracker.start(prog, args, q, v),
