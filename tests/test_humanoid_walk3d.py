@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from biped_jax.drives import model as drive_model
-from biped_jax.humanoid import walk3d, walker
+from biped_jax.humanoid import tracker, walk3d, walker
 
 pytestmark = pytest.mark.xdist_group("walk3d")
 
@@ -149,6 +149,27 @@ def test_the_measures_find_steps_rebounds_and_slip():
     assert figures["touchdowns"][2]["longest_loss_s"] == pytest.approx(0.001, abs=1e-9)
     assert figures["longest_contact_loss_s"] == pytest.approx(0.005, abs=1e-9)
     assert figures["slip_max_m"] == pytest.approx(0.004, abs=1e-9)
+
+
+def test_the_paths_own_torques_are_measured_against_the_drive_line():
+    """A made-up path: joint 0 standing still asks twice the drive's stall torque (ratio 2); joint 3 moving at
+    10 rad/s asks exactly what the line gives at that speed (ratio 1), less than it gives standing still."""
+    prog = walk3d.program("12kg", ())
+    high_at = lambda speed: np.asarray(drive_model.torque_limits(prog.drives, jnp.asarray(speed)))[1]  # noqa: E731
+    samples = 3
+    moving = np.zeros(16)
+    moving[3] = 10.0
+    qvel = np.zeros((samples, prog.mj_model.nv))
+    qvel[2, prog.layout.qvel[3]] = 10.0
+    torque = np.zeros((samples, 16))
+    torque[1, 0] = 2.0 * high_at(np.zeros(16))[0]
+    torque[2, 3] = high_at(moving)[3]
+    assert high_at(moving)[3] < high_at(np.zeros(16))[3]
+    path = tracker.Path3D(phase=np.linspace(0, 1, samples), qpos=np.zeros((samples, prog.mj_model.nq)), qvel=qvel,
+                          torque=torque, pitch=np.zeros(samples))
+    ratio = tracker.path_drive_ratio(prog, path)
+    assert ratio.shape == (samples, 16)
+    assert ratio[1, 0] == pytest.approx(2.0) and ratio[2, 3] == pytest.approx(1.0) and ratio[0].max() == 0.0
 
 
 def test_bad_input_is_named():

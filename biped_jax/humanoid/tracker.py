@@ -228,6 +228,14 @@ def path_3d(prog: walk3d.Program, model, trajectory, mass_class: str,
     return Path3D(*(jnp.asarray(a) for a in (phase, qpos, qvel, torque, pitch)))
 
 
+def path_drive_ratio(prog: walk3d.Program, path: Path3D) -> np.ndarray:
+    """The path's own torques (its inverse dynamics, the feed-forward) over what the drives of ``prog`` give
+    at the path's joint speeds, (S, 16) (:func:`biped_jax.humanoid.walk3d.drive_ratio`): above 1 the path
+    itself asks more than the drive's line, whatever the feedback does."""
+    speed = np.asarray(path.qvel)[:, list(prog.layout.qvel)]
+    return walk3d.drive_ratio(prog.drives, np.asarray(path.torque), speed)
+
+
 def planted(prog: walk3d.Program, qpos: np.ndarray, qvel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(qpos, qvel), (S, nq) and (S, nv), with the free base moved so that foot l stands still under its hip
     (x = 0, y = the hip's offset) with its sole on the ground: the base's position and linear velocity

@@ -360,9 +360,10 @@ def walk_3d(walking: Walking, trajectory, steps: int, batch: int, progress: Call
             ) -> tuple[dict, object]:
     """The 3D walk ``walking`` (:mod:`biped_jax.humanoid.walk3d`): ``steps`` steps after its transient
     touchdowns, the walk's figures, the push trials (nominal impulse and sweep, ``batch`` runs each), the cost
-    of transport against the optimal step's (``trajectory``). Returns (the record for humanoid.json, the
-    walk)."""
-    from biped_jax.humanoid import free_base, walk3d
+    of transport against the optimal step's (``trajectory``) and, for the tracker, the largest of its path's
+    own torques over the drive's line (:func:`biped_jax.humanoid.tracker.path_drive_ratio`; the joint and
+    phase). Returns (the record for humanoid.json, the walk)."""
+    from biped_jax.humanoid import free_base, tracker, walk3d
     name, mass_class = walking.name, walking.mass_class
     _, model = paper_model(name)
     params = walk_params(name)
@@ -391,6 +392,12 @@ def walk_3d(walking: Walking, trajectory, steps: int, batch: int, progress: Call
              **figures, "gait_cost_of_transport": gait_cot}
     if entry.get("cost_of_transport") is not None:
         entry["cost_of_transport_ratio"] = entry["cost_of_transport"] / gait_cot
+    if walking.law is tracker.LAW:
+        ratio = tracker.path_drive_ratio(prog, walking.args.path)
+        sample, joint = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        entry["path_max_drive_torque_ratio"] = float(ratio[sample, joint])
+        entry["path_max_drive_torque_at"] = {"joint": prog.mj_model.actuator(int(joint)).name,
+                                             "phase": float(np.asarray(walking.args.path.phase)[sample])}
     if batch:
         progress(f"{name}: {batch} pushed walks at {PUSH_IMPULSE} N s, then {batch} over 0-{PUSH_SWEEP} N s")
         entry["push_nominal"] = push_trial(walking, batch, PUSH_IMPULSE)
