@@ -41,7 +41,7 @@ CONTACT_FORCE = 1.0
 #: first contact and before its planned lift-off: twice the depth to which a stance sole sinks into MuJoCo's
 #: soft contact (about 0.05 mm). The ground's force alone is no test of that: mid-stance it drops to zero
 #: for single physics steps with the sole still in the ground (measured on the tracker's walks: the sole at
-#: -0.05 to +0.003 mm in those steps), which :func:`measures` counts apart as contact losses.
+#: -0.05 to +0.006 mm in those steps), which :func:`measures` counts apart as contact losses.
 REBOUND_HEIGHT = 1e-4
 #: Walks per call of the batched program (:func:`survive`): a larger batch is run in calls of this many.
 #: A vmapped batch of 64 walks hangs XLA's CPU runtime in this version (jax 0.10.2: no progress, every
