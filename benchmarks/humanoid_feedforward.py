@@ -201,8 +201,8 @@ def main():
         lateral = {k: controller["lateral"][k] for k in LATERAL_SCALE}
     parallel = () if args.one_hip_roll_drive else None
     started = time.perf_counter()
-    walk = lambda gains, lateral, path=None: study.tracker_walking(  # noqa: E731
-        args.model, x, settings, trajectory, gains, args.clearance, parallel, lateral, path)
+    walk = lambda gains, lateral, earlier=None: study.tracker_walking(  # noqa: E731
+        args.model, x, settings, trajectory, gains, args.clearance, parallel, lateral, earlier)
     walking = walk(gains, lateral)
     prog = walk3d.program(walking.mass_class, walking.parallel)
     torque = np.abs(np.asarray(walking.args.path.torque)).max(axis=0)
@@ -214,12 +214,12 @@ def main():
         lateral = tune_lateral(walking, starts(walking, args.tune_starts), args.tune_lateral, 16, 6.0,
                                float(model.step_length), args.lift_weight)
         print("lateral numbers:", json.dumps(lateral), flush=True)
-        walking = walk(walking.args.gains, lateral, walking.args.path)
+        walking = walk(walking.args.gains, lateral, walking)
     if args.tune:
         gains = tune(walking, starts(walking, args.tune_starts), args.tune, args.population, args.tune_seconds,
                      float(model.step_length), args.lift_weight, args.tune_sigma, args.excess_weight,
                      args.speed_weight, args.lift_height)
-        walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking.args.path)
+        walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking)
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
     row = {"model": args.model, "clearance_m": args.clearance, "wall_s": time.perf_counter() - started,

@@ -277,16 +277,16 @@ def walker_walking(name: str) -> Walking:
 
 def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory,
                     gains=None, clearance: float | None = None, parallel: tuple[str, ...] | None = None,
-                    lateral: dict | None = None, path=None) -> Walking:
+                    lateral: dict | None = None, earlier: Walking | None = None) -> Walking:
     """Model ``name`` on the tracker of its optimal step (decision vector ``x`` under ``settings``, simulated
     as ``trajectory``), from the gait's state after a touchdown: ``gains`` (default
     :func:`biped_jax.humanoid.tracker.gains_for`), the lateral law's numbers ``lateral`` (fields of
     :class:`biped_jax.humanoid.walker.WalkerParams`, over :func:`biped_jax.humanoid.tracker.lateral_for`'s),
     the swing foot's ``clearance`` (m, default :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two
-    drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`). ``path``: the
-    :class:`biped_jax.humanoid.tracker.Path3D` of an earlier call with the same step, clearance and drives
-    (its inverse dynamics take 15-25 s on a 2-core CPU and depend on neither the gains nor the lateral
-    numbers), else computed."""
+    drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`). ``earlier``: this
+    function's walk of the same step, clearance and drives, whose path and gait reference are reused (the
+    path's inverse dynamics take 15-25 s on a 2-core CPU; neither depends on the gains or the lateral
+    numbers), else both are computed."""
     from biped_jax.humanoid import reference, tracker, walk3d
     mass_class, model = paper_model(name)
     params, lateral = walk_params(name), {**tracker.lateral_for(name), **(lateral or {})}
@@ -296,8 +296,10 @@ def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSetting
     params = dataclasses.replace(params, **lateral)
     parallel = walk3d.drive_set(mass_class, tracker.DRIVES if parallel is None else parallel)
     prog = walk3d.program(mass_class, parallel)
-    gait = reference.gait_reference(x, model, settings, trajectory, mass_class)
-    if path is None:
+    if earlier is not None:
+        path, gait = earlier.args.path, earlier.args.gait
+    else:
+        gait = reference.gait_reference(x, model, settings, trajectory, mass_class)
         path = tracker.path_3d(prog, model, trajectory, mass_class,
                                reference.SWING_CLEARANCE if clearance is None else clearance)
     args = tracker.TrackerArgs(tracker.gains_for(name) if gains is None else gains, path, gait, params)
