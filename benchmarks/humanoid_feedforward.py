@@ -169,6 +169,9 @@ def main():
                              "(default: the model's tuned)")
     parser.add_argument("--clearance", type=float, default=reference.SWING_CLEARANCE,
                         help="the swing foot's lift over the optimal step's path mid-step, m")
+    parser.add_argument("--gait-clearance", type=float, default=0.0,
+                        help="solve the step again with the swing foot this high mid-step, m (the gait problem's "
+                             "swing_clearance; 0: the study's optimum)")
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
     parser.add_argument("--population", type=int, default=24)
     parser.add_argument("--tune-seconds", type=float, default=9.0)
@@ -194,6 +197,10 @@ def main():
     args = parser.parse_args()
 
     x, settings, trajectory = optimal_step(args.model, args.gaits)
+    if args.gait_clearance:
+        x, settings, status = study.cleared_gait(args.model, x, settings, args.gait_clearance)
+        print(f"the step with {args.gait_clearance} m of swing clearance: {status}", flush=True)
+        trajectory = study.simulated_step(args.model, x, settings)
     gains = lateral = None
     if args.gains:
         controller = json.loads(args.gains.read_text())["rows"][0]["controller"]
@@ -222,7 +229,8 @@ def main():
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking)
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
-    row = {"model": args.model, "clearance_m": args.clearance, "wall_s": time.perf_counter() - started,
+    row = {"model": args.model, "clearance_m": args.clearance, "gait_clearance_m": args.gait_clearance,
+            "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}
     print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)

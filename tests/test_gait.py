@@ -238,6 +238,29 @@ def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solut
     assert solution.cost == pytest.approx(float(weights @ np.sum(np.asarray(trajectory.u) ** 2, axis=1)), rel=1e-9)
 
 
+def test_the_swing_clearance_holds_the_foot_over_its_profile(m2_solution):
+    """``GaitSettings.swing_clearance``: the swing foot's rows are its height under the profile, 0 at lift-off
+    and touchdown, the clearance from 10 % of the step to 90 %, half of it half-way up the smoothstep; the
+    optimum without it sweeps the foot lower than 10 mm near touchdown, so its rows there are violated."""
+    from biped_jax.gait import constraints
+    from biped_jax.studies import paper as study
+    clearance = dataclasses.replace(short_settings(), swing_clearance=0.01)
+    model = study.paper_gait_models(study.PAPER_MODELS[1:2])[0]
+    trajectory = m2_solution.trajectory
+    phase = np.asarray(trajectory.t) / float(trajectory.t[-1])
+    held = np.asarray(gait_problem.constraint_groups(trajectory, model, clearance)["swing_foot_height"])
+    plain = np.asarray(gait_problem.constraint_groups(trajectory, model, short_settings())["swing_foot_height"])
+    profile = held - plain
+    np.testing.assert_allclose(plain, -np.asarray(trajectory.swing_foot)[1:-1, 1])
+    middle = (phase[1:-1] >= 0.1) & (phase[1:-1] <= 0.9)
+    np.testing.assert_allclose(profile[middle], 0.01, rtol=1e-12)
+    assert np.all(profile >= 0) and np.all(profile[~middle] < 0.01)
+    np.testing.assert_allclose(np.asarray(constraints.clearance_profile(np.array([0.0, 0.05, 0.95, 1.0]), clearance)),
+                               [0.0, 0.005, 0.005, 0.0], atol=1e-15)
+    assert float(gait_problem.violations(gait_problem.constraint_groups(trajectory, model, clearance))
+                 ["swing_foot_height"]) > 1e-3
+
+
 @pytest.mark.slow
 def test_multistart_reports_the_spread_and_keeps_the_best(solver):
     """Four start families of M2 in one batch (the program the paper fixture compiled); the cheapest
@@ -287,6 +310,9 @@ def test_table_values_are_recomputed_from_the_trajectory(m2_solution):
     (dict(torque_bound=-1.0), "torque_bound must be a number"),
     (dict(friction=float("nan")), "friction must be a number"),
     (dict(knee_max=float("nan")), "knee_max must be a number"),
+    (dict(swing_clearance=10.0), r"swing_clearance must be a number in \[0, 0.05\] m, got 10.0"),  # mm for m
+    (dict(swing_clearance=-0.01), "swing_clearance must be a number in"),
+    (dict(swing_clearance=0.01, clearance_ramp=0.0), "clearance_ramp must be a number in"),
 ])
 def test_bad_settings_are_rejected(changes, message):
     with pytest.raises(ValueError, match=message):

@@ -14,8 +14,9 @@ from biped_jax.gait import segmented
 from biped_jax.optim import jacobian
 from biped_jax.optim import local_derivatives as ld
 
-#: Multiply shot in 4 segments of one knot span.
-SPACES = {"4 segments": gait_problem.GaitSettings(spans=4, segments=4, substeps=2)}
+#: Multiply shot in 4 segments of one knot span, the swing foot held 10 mm up mid-step (its rows read each
+#: sample's phase).
+SPACES = {"4 segments": gait_problem.GaitSettings(spans=4, segments=4, substeps=2, swing_clearance=0.01)}
 
 
 def _space(settings):

@@ -56,10 +56,19 @@ SAMPLE_GROUPS = ("swing_foot_height", "heights", "knee_range", "vertical_force",
 NO_SPEED_LIMIT = 1e3
 
 
-def sample_groups(q, u, ground_force, swing_foot, heights, joint_speed, model: GaitModel,
+def clearance_profile(phase, settings: GaitSettings):
+    """The swing foot's least height at the step's phases ``phase`` (t / t_f, any shape), m:
+    ``settings.swing_clearance`` between the ramps, a smoothstep from 0 over the first and to 0 over the
+    last ``settings.clearance_ramp`` of the step."""
+    ramp = jnp.clip(jnp.minimum(phase, 1.0 - phase) / settings.clearance_ramp, 0.0, 1.0)
+    return settings.swing_clearance * ramp**2 * (3.0 - 2.0 * ramp)
+
+
+def sample_groups(q, u, ground_force, swing_foot, heights, joint_speed, phase, model: GaitModel,
                   settings: GaitSettings) -> dict:
-    """The per-sample groups at N samples (arrays (N, ...) of :class:`GaitTrajectory`'s fields), each
-    of shape (blocks, N, components) in its own unit (``swing_foot_height`` at every sample). With
+    """The per-sample groups at N samples (arrays (N, ...) of :class:`GaitTrajectory`'s fields; ``phase``
+    the samples' t / t_f, (N,)), each of shape (blocks, N, components) in its own unit
+    (``swing_foot_height`` at every sample: the foot's height under :func:`clearance_profile`). With
     ``settings.drive_limits`` the torque bound is also the gear's intermittent torque and
     ``gear_input_speed`` bounds the joint speeds by the gear's input speed over N; without, that group
     has no components."""
@@ -72,8 +81,11 @@ def sample_groups(q, u, ground_force, swing_foot, heights, joint_speed, model: G
         gear_speed = _two_sided_blocks(joint_speed, speed_bound)
     else:
         torque_bound, gear_speed = settings.torque_bound, jnp.zeros((2, joint_speed.shape[0], 0), joint_speed.dtype)
+    clearance = -swing_foot[None, :, 1:2]
+    if settings.swing_clearance:  # the paper's problem (none) keeps its programs
+        clearance = clearance + clearance_profile(phase, settings)[None, :, None]
     return {
-        "swing_foot_height": -swing_foot[None, :, 1:2],
+        "swing_foot_height": clearance,
         "heights": -heights[None],
         "knee_range": jnp.stack([-knees, knees - settings.knee_max]),
         "vertical_force": -fz[None, :, None],
@@ -104,7 +116,8 @@ def boundary_groups(trajectory_ends: dict, model: GaitModel, settings: GaitSetti
 def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: GaitSettings) -> dict:
     """Each group's residuals in its own unit: equalities (= 0) and inequalities (<= 0)."""
     tr = trajectory
-    samples = sample_groups(tr.q, tr.u, tr.ground_force, tr.swing_foot, tr.heights, tr.joint_speed, model, settings)
+    samples = sample_groups(tr.q, tr.u, tr.ground_force, tr.swing_foot, tr.heights, tr.joint_speed, tr.t / tr.t[-1],
+                            model, settings)
     samples["swing_foot_height"] = samples["swing_foot_height"][:, 1:-1]
     ends = {"q0": tr.q[0], "qd0": tr.qd[0], "swing_foot_end": tr.swing_foot[-1],
             "swing_foot_velocity": tr.swing_foot_velocity, "touchdown": tr.touchdown}

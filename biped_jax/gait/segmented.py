@@ -65,7 +65,8 @@ def _layout(settings: GaitSettings):
     owned = np.ones((segments, per + 1))
     owned[:-1, -1] = 0.0  # a segment's end sample is the next node's (the last one's is the step's end)
     data = {"basis_grid": np.moveaxis(b_grid, 0, 1), "basis_mid": np.moveaxis(b_mid, 0, 1),
-            "ds": np.diff(s)[mid_rows], "weights": weights[np.minimum(grid_rows, settings.steps)] * owned}
+            "ds": np.diff(s)[mid_rows], "weights": weights[np.minimum(grid_rows, settings.steps)] * owned,
+            "phase": s[grid_rows]}
     return first, window, data
 
 
@@ -169,8 +170,8 @@ class _Split:
         # where the square root's derivative is not finite, and t_f moves with a free step length
         r = self._residuals(u, speed, model, data["weights"]) * jnp.sqrt(step_time)
         r = self.spec.scaled_residuals(r, self._extra(local))  # r . r = J / l for an energy per metre
-        groups = constraints.sample_groups(q, u, force, positions[:, 0], positions[:, 1:, 1], speed, model,
-                                           self.settings)
+        groups = constraints.sample_groups(q, u, force, positions[:, 0], positions[:, 1:, 1], speed, data["phase"],
+                                           model, self.settings)
         following = local[2 + 4 * self.window:4 + 4 * self.window]
         h = (end - following) / jnp.asarray(_DEFECT_SCALES, end.dtype)
         g = jnp.concatenate([(groups[name] / constraints.group_scale(name)).ravel()

@@ -26,6 +26,10 @@ NO_FRICTION_LIMIT = 1e3
 #: Power limit standing for "no power limit" (Kelly's benchmark, the co-design's mass study), W.
 NO_POWER_LIMIT = 1e6
 
+#: The largest swing clearance accepted, m: a tenth of the smaller biped's leg; beyond, a typo more
+#: likely than a gait (the optimal steps lift the foot 40-60 mm mid-step).
+MAX_SWING_CLEARANCE = 0.05
+
 #: The refinement check re-simulates a solution on a grid this many times finer.
 REFINEMENT = 4
 
@@ -62,6 +66,13 @@ class GaitSettings:
         input speed (the ``gear_input_speed`` group). Off by default (the paper's problem: its ideal
         drives have none); the co-design's catalogue drives have them. On, every program has 8 more rows
         per sample; off, the group has none.
+      swing_clearance: the swing foot's least height over the ground through mid-step, m; 0 (the
+        default, the paper's problem) only keeps it above the ground. A real foot needs millimetres
+        over the floor for its tracking error (the 3D humanoid lifts its foot 10 mm); in the problem the
+        gait pays for the lift in its own torques instead of a lift added after the optimisation.
+      clearance_ramp: the fraction of the step over which the clearance rises from 0 after lift-off and
+        falls to 0 before touchdown, along a smoothstep (no corner: the swing leg's torques follow the
+        profile's second derivative).
 
     Raises ValueError naming the field, its value and the allowed range.
     """
@@ -76,6 +87,8 @@ class GaitSettings:
     dynamics: str = "chain"
     segments: int | None = None
     drive_limits: bool = False
+    swing_clearance: float = 0.0
+    clearance_ramp: float = 0.1
 
     def __post_init__(self):
         if self.segments is None and not isinstance(self.spans, bool) and isinstance(self.spans, int):
@@ -94,6 +107,11 @@ class GaitSettings:
         # only keeps F_z >= 0; a coefficient between 10 and that is a typo more likely than a foot
         _check_number("friction", self.friction, 0.0, NO_FRICTION_LIMIT, "(friction coefficient; 1e3: no limit)")
         _check_number("knee_max", self.knee_max, 0.0, math.pi, "rad")
+        if isinstance(self.swing_clearance, bool) or not isinstance(self.swing_clearance, (int, float)) \
+                or not 0.0 <= self.swing_clearance <= MAX_SWING_CLEARANCE:
+            raise ValueError(f"GaitSettings.swing_clearance must be a number in [0, {MAX_SWING_CLEARANCE:g}] m, "
+                             f"got {self.swing_clearance!r}")
+        _check_number("clearance_ramp", self.clearance_ramp, 1e-3, 0.5, "(fraction of the step)")
         if not isinstance(self.drive_limits, bool):
             raise ValueError(f"GaitSettings.drive_limits must be True or False, got {self.drive_limits!r}")
 
