@@ -172,6 +172,8 @@ def main():
     parser.add_argument("--gait-clearance", type=float, default=0.0,
                         help="solve the step again with the swing foot this high mid-step, m (the gait problem's "
                              "swing_clearance; 0: the study's optimum)")
+    parser.add_argument("--clearance-ramp", type=float, default=0.1,
+                        help="with --gait-clearance: the share of the step over which it rises and falls")
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
     parser.add_argument("--population", type=int, default=24)
     parser.add_argument("--tune-seconds", type=float, default=9.0)
@@ -198,7 +200,8 @@ def main():
 
     x, settings, trajectory = optimal_step(args.model, args.gaits)
     if args.gait_clearance:
-        x, settings, status = study.cleared_gait(args.model, x, settings, args.gait_clearance)
+        x, settings, status = study.cleared_gait(args.model, x, settings, args.gait_clearance,
+                                                   args.clearance_ramp)
         print(f"the step with {args.gait_clearance} m of swing clearance: {status}", flush=True)
         trajectory = study.simulated_step(args.model, x, settings)
     gains = lateral = None
@@ -230,7 +233,7 @@ def main():
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
     row = {"model": args.model, "clearance_m": args.clearance, "gait_clearance_m": args.gait_clearance,
-           "wall_s": time.perf_counter() - started,
+           "clearance_ramp": args.clearance_ramp, "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}
     print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)
