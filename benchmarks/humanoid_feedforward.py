@@ -174,6 +174,8 @@ def main():
                              "swing_clearance; 0: the study's optimum)")
     parser.add_argument("--clearance-ramp", type=float, default=0.1,
                         help="with --gait-clearance: the share of the step over which it rises and falls")
+    parser.add_argument("--touchdown-speed", type=float, default=None,
+                        help="with --gait-clearance: the swing foot's largest forward speed at touchdown, m/s")
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
     parser.add_argument("--population", type=int, default=24)
     parser.add_argument("--tune-seconds", type=float, default=9.0)
@@ -201,7 +203,7 @@ def main():
     x, settings, trajectory = optimal_step(args.model, args.gaits)
     if args.gait_clearance:
         x, settings, status = study.cleared_gait(args.model, x, settings, args.gait_clearance,
-                                                   args.clearance_ramp)
+                                                   args.clearance_ramp, args.touchdown_speed)
         print(f"the step with {args.gait_clearance} m of swing clearance: {status}", flush=True)
         trajectory = study.simulated_step(args.model, x, settings)
     gains = lateral = None
@@ -233,7 +235,8 @@ def main():
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
     row = {"model": args.model, "clearance_m": args.clearance, "gait_clearance_m": args.gait_clearance,
-           "clearance_ramp": args.clearance_ramp, "wall_s": time.perf_counter() - started,
+           "clearance_ramp": args.clearance_ramp, "touchdown_speed_mps": args.touchdown_speed,
+           "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}
     print(json.dumps({k: v for k, v in row.items() if not isinstance(v, (dict, list))}, indent=1), flush=True)

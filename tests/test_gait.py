@@ -313,6 +313,7 @@ def test_table_values_are_recomputed_from_the_trajectory(m2_solution):
     (dict(swing_clearance=10.0), r"swing_clearance must be a number in \[0, 0.05\] m, got 10.0"),  # mm for m
     (dict(swing_clearance=-0.01), "swing_clearance must be a number in"),
     (dict(swing_clearance=0.01, clearance_ramp=0.0), "clearance_ramp must be a number in"),
+    (dict(touchdown_forward_speed=float("inf")), "touchdown_forward_speed must be a number in"),
 ])
 def test_bad_settings_are_rejected(changes, message):
     with pytest.raises(ValueError, match=message):

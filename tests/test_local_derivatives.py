@@ -15,8 +15,9 @@ from biped_jax.optim import jacobian
 from biped_jax.optim import local_derivatives as ld
 
 #: Multiply shot in 4 segments of one knot span, the swing foot held 10 mm up mid-step (its rows read each
-#: sample's phase).
-SPACES = {"4 segments": gait_problem.GaitSettings(spans=4, segments=4, substeps=2, swing_clearance=0.01)}
+#: sample's phase) and landing at most 1 m/s forward (a second touchdown row).
+SPACES = {"4 segments": gait_problem.GaitSettings(spans=4, segments=4, substeps=2, swing_clearance=0.01,
+                                                  touchdown_forward_speed=1.0)}
 
 
 def _space(settings):

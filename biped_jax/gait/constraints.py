@@ -107,10 +107,19 @@ def boundary_groups(trajectory_ends: dict, model: GaitModel, settings: GaitSetti
         "touchdown_position": jnp.array([e["swing_foot_end"][0] - model.step_length, e["swing_foot_end"][1]]),
         "periodicity_angle": impact.q[:1] - e["q0"][:1],
         "periodicity_rate": impact.qd - e["qd0"],
-        "touchdown_descending": e["swing_foot_velocity"][1:],
+        "touchdown_descending": touchdown_rows(e["swing_foot_velocity"], settings),
         "impact_impulse": jnp.array([-lz, lx - settings.friction * lz, -lx - settings.friction * lz]),
         "liftoff": -impact.old_stance_foot_velocity[1:],
     }
+
+
+def touchdown_rows(swing_foot_velocity, settings: GaitSettings):
+    """``touchdown_descending``'s rows from the swing foot's (x, z) velocity at touchdown (2,), m/s: moving
+    down, and with ``settings.touchdown_forward_speed`` forward at most that fast."""
+    rows = swing_foot_velocity[1:]
+    if settings.touchdown_forward_speed is not None:
+        rows = jnp.concatenate([rows, swing_foot_velocity[:1] - settings.touchdown_forward_speed])
+    return rows
 
 
 def constraint_groups(trajectory: GaitTrajectory, model: GaitModel, settings: GaitSettings) -> dict:

@@ -114,7 +114,8 @@ class _Split:
             offsets[name] = at
             at += shapes[name][0] * (per + 1) * shapes[name][1]
         g_size, split_g = at, segments * at
-        boundary = {"touchdown_descending": (0, 1), "impact_impulse": (1, 3), "liftoff": (4, 1)}
+        landing = 1 + (self.settings.touchdown_forward_speed is not None)  # touchdown_descending's rows
+        boundary = {"touchdown_descending": (0, landing), "impact_impulse": (landing, 3), "liftoff": (landing + 3, 1)}
         boundary_size = sum(count for _, count in boundary.values())
         order_g = []
         for name, (kind, _) in constraints.CONSTRAINT_GROUPS.items():

@@ -71,11 +71,12 @@ def solved_gait(name: str, settings: gait_problem.GaitSettings, gaits: Path | No
 
 
 def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, clearance: float,
-                 ramp: float | None = None, progress: Callable[[str], None] | None = None
-                 ) -> tuple[np.ndarray, gait_problem.GaitSettings, str]:
+                 ramp: float | None = None, touchdown_speed: float | None = None,
+                 progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, gait_problem.GaitSettings, str]:
     """(decision vector, settings, status) of model ``name``'s optimal step solved again with the swing foot
     held ``clearance`` m over the ground mid-step (:attr:`~biped_jax.gait.problem.GaitSettings.swing_clearance`;
-    ``ramp``: its ``clearance_ramp``, default the settings'),
+    ``ramp``: its ``clearance_ramp``, default the settings'; ``touchdown_speed``: its
+    ``touchdown_forward_speed``, m/s, default the settings'),
     from the step ``x`` under ``settings`` (the study's optimum; the interior point starts with the study's
     barrier, as from a cold start: the optimum violates the new rows). The humanoid then walks a path whose
     own torques include the lift, instead of a lift added to the optimum (which costs the swing hip several
@@ -83,7 +84,9 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
     from biped_jax.gait.solver import GaitSolver
     from biped_jax.studies import paper
     settings = dataclasses.replace(settings, swing_clearance=float(clearance),
-                                   clearance_ramp=settings.clearance_ramp if ramp is None else float(ramp))
+                                   clearance_ramp=settings.clearance_ramp if ramp is None else float(ramp),
+                                   touchdown_forward_speed=settings.touchdown_forward_speed if touchdown_speed is None
+                                   else float(touchdown_speed))
     _, model = paper_model(name)
     say = progress or (lambda message: None)
     say(f"solving {name}'s step again with the swing foot {1e3 * clearance:g} mm up mid-step")
