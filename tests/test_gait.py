@@ -238,10 +238,12 @@ def test_short_horizon_gait_satisfies_the_constraints_on_its_trajectory(m2_solut
     assert solution.cost == pytest.approx(float(weights @ np.sum(np.asarray(trajectory.u) ** 2, axis=1)), rel=1e-9)
 
 
-def test_the_swing_clearance_holds_the_foot_over_its_profile(m2_solution):
+def test_the_swing_clearance_and_the_landing_speed_bound_the_swing_foot(m2_solution):
     """``GaitSettings.swing_clearance``: the swing foot's rows are its height under the profile, 0 at lift-off
     and touchdown, the clearance from 10 % of the step to 90 %, half of it half-way up the smoothstep; the
-    optimum without it sweeps the foot lower than 10 mm near touchdown, so its rows there are violated."""
+    optimum without it sweeps the foot lower than 10 mm near touchdown, so its rows there are violated.
+    ``touchdown_forward_speed`` adds the foot's forward speed at touchdown over the bound to the rows that
+    keep it descending."""
     from biped_jax.gait import constraints
     from biped_jax.studies import paper as study
     clearance = dataclasses.replace(short_settings(), swing_clearance=0.01)
@@ -259,6 +261,11 @@ def test_the_swing_clearance_holds_the_foot_over_its_profile(m2_solution):
                                [0.0, 0.005, 0.005, 0.0], atol=1e-15)
     assert float(gait_problem.violations(gait_problem.constraint_groups(trajectory, model, clearance))
                  ["swing_foot_height"]) > 1e-3
+    velocity = np.asarray(trajectory.swing_foot_velocity)
+    landing = dataclasses.replace(clearance, touchdown_forward_speed=0.5)
+    np.testing.assert_allclose(gait_problem.constraint_groups(trajectory, model, landing)["touchdown_descending"],
+                               [velocity[1], velocity[0] - 0.5])
+    assert velocity[0] > 0.5 and velocity[1] < 0  # the optimum lands moving forward and down
 
 
 @pytest.mark.slow
