@@ -167,11 +167,13 @@ def main():
     parser.add_argument("--gains", type=Path, default=None,
                         help="a result of this script to take the gains and lateral numbers from "
                              "(default: the model's tuned)")
-    parser.add_argument("--clearance", type=float, default=reference.SWING_CLEARANCE,
-                        help="the swing foot's lift over the optimal step's path mid-step, m")
-    parser.add_argument("--gait-clearance", type=float, default=0.0,
+    parser.add_argument("--clearance", type=float, default=None,
+                        help="the swing foot's lift over the step's path mid-step, m (default: 0 on a step solved "
+                             f"with a clearance, else {reference.SWING_CLEARANCE})")
+    parser.add_argument("--gait-clearance", type=float, default=None,
                         help="solve the step again with the swing foot this high mid-step, m (the gait problem's "
-                             "swing_clearance; 0: the study's optimum)")
+                             "swing_clearance; 0: the study's optimum; default: the command's, "
+                             "studies.humanoid.WALK_GAITS)")
     parser.add_argument("--clearance-ramp", type=float, default=0.1,
                         help="with --gait-clearance: the share of the step over which it rises and falls")
     parser.add_argument("--touchdown-speed", type=float, default=None,
@@ -201,10 +203,16 @@ def main():
     args = parser.parse_args()
 
     x, settings, trajectory = optimal_step(args.model, args.gaits)
+    if args.gait_clearance is None:  # the command's step
+        args.gait_clearance, landing = study.WALK_GAITS.get(args.model, (0.0, None))
+        args.touchdown_speed = landing if args.touchdown_speed is None else args.touchdown_speed
+    if args.clearance is None:
+        args.clearance = 0.0 if args.gait_clearance else reference.SWING_CLEARANCE
     if args.gait_clearance:
         x, settings, status = study.cleared_gait(args.model, x, settings, args.gait_clearance,
                                                    args.clearance_ramp, args.touchdown_speed)
-        print(f"the step with {args.gait_clearance} m of swing clearance: {status}", flush=True)
+        print(f"the step with {args.gait_clearance} m of swing clearance, landing at most {args.touchdown_speed} m/s "
+              f"forward: {status}", flush=True)
         trajectory = study.simulated_step(args.model, x, settings)
     gains = lateral = None
     if args.gains:
