@@ -17,6 +17,7 @@ from biped_jax import humanoid
 from biped_jax import robots
 from biped_jax.report import animation
 from biped_jax.report import outputs
+from biped_jax.report import progress as progress_report
 from biped_jax.studies import paper as study
 
 #: The paper's drive of the 12 kg robot (Section 2.3), drawn beside the replay's joint demand.
@@ -89,7 +90,6 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
     own torques include the lift, instead of a lift added to the optimum (which costs the swing hip several
     times the optimum's torque where it turns)."""
     from biped_jax.gait.solver import GaitSolver
-    from biped_jax.studies import paper
     settings = dataclasses.replace(settings, swing_clearance=float(clearance),
                                    clearance_ramp=settings.clearance_ramp if ramp is None else float(ramp),
                                    touchdown_forward_speed=settings.touchdown_forward_speed if touchdown_speed is None
@@ -97,9 +97,9 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
     _, model = paper_model(name)
     say = progress or (lambda message: None)
     say(f"solving {name}'s step again with the swing foot {1e3 * clearance:g} mm up mid-step")
-    solution = GaitSolver(settings).using(paper.IP_OPTIONS).solve(
-        [name], [model], x0=np.asarray(x)[None], progress=lambda i, row: say(
-            f"{name}: outer iteration {i + 1}, largest scaled violation {np.max(row['violation']):.1e}"))[0]
+    solution = GaitSolver(settings).using(study.IP_OPTIONS).solve(
+        [name], [model], x0=np.asarray(x)[None],
+        progress=progress_report.iteration_progress(say, name, study.IP_OPTIONS.max_iterations))[0]
     return solution.x, settings, solution.status
 
 
@@ -229,12 +229,13 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
             x_walked, settings_walked, walked = x, settings, trajectory
         else:
             x_walked, settings_walked, _ = solved_gait(model_name, settings, gaits, say)
-            walked = simulated_step(model_name, x_walked, settings_walked)
+            walked = None
         cleared = law == "tracker" and model_name in WALK_GAITS
         if cleared:
             clearance, landing = WALK_GAITS[model_name]
             x_walked, settings_walked, gait_status = cleared_gait(model_name, x_walked, settings_walked, clearance,
                                                                   touchdown_speed=landing, progress=say)
+        if walked is None or cleared:
             walked = simulated_step(model_name, x_walked, settings_walked)
         walking = (tracker_walking(model_name, x_walked, settings_walked, walked, clearance=0.0 if cleared else None)
                    if law == "tracker" else walker_walking(model_name))
