@@ -203,17 +203,15 @@ def main():
     args = parser.parse_args()
 
     x, settings, trajectory = optimal_step(args.model, args.gaits)
-    if args.gait_clearance is None:  # the command's step
-        args.gait_clearance, landing = study.WALK_GAITS.get(args.model, (0.0, None))
-        args.touchdown_speed = landing if args.touchdown_speed is None else args.touchdown_speed
+    # the command's step (studies.humanoid.WALK_GAITS) unless --gait-clearance names another
+    step = study.walked_step(args.model, x, settings, trajectory, args.gait_clearance, args.touchdown_speed,
+                             args.clearance_ramp, print)
+    x, settings, trajectory = step.x, step.settings, step.trajectory
+    if step.gait is not None:
+        print(f"the step with {step.gait['swing_clearance_m']} m of swing clearance, landing at most "
+              f"{step.gait['touchdown_forward_speed_mps']} m/s forward: {step.gait['status']}", flush=True)
     if args.clearance is None:
-        args.clearance = 0.0 if args.gait_clearance else reference.SWING_CLEARANCE
-    if args.gait_clearance:
-        x, settings, status = study.cleared_gait(args.model, x, settings, args.gait_clearance,
-                                                   args.clearance_ramp, args.touchdown_speed)
-        print(f"the step with {args.gait_clearance} m of swing clearance, landing at most {args.touchdown_speed} m/s "
-              f"forward: {status}", flush=True)
-        trajectory = study.simulated_step(args.model, x, settings)
+        args.clearance = reference.SWING_CLEARANCE if step.lift is None else step.lift
     gains = lateral = None
     if args.gains:
         controller = json.loads(args.gains.read_text())["rows"][0]["controller"]
@@ -242,8 +240,10 @@ def main():
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking)
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
-    row = {"model": args.model, "clearance_m": args.clearance, "gait_clearance_m": args.gait_clearance,
-           "clearance_ramp": args.clearance_ramp, "touchdown_speed_mps": args.touchdown_speed,
+    row = {"model": args.model, "clearance_m": args.clearance,
+           "gait_clearance_m": step.gait["swing_clearance_m"] if step.gait else 0.0,
+           "clearance_ramp": step.settings.clearance_ramp,
+           "touchdown_speed_mps": step.gait["touchdown_forward_speed_mps"] if step.gait else None,
            "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}

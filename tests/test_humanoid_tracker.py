@@ -140,7 +140,8 @@ def test_on_the_path_the_law_commands_the_inverse_dynamics_plus_pd(walkings):
 def test_the_damping_ramps_in_over_the_impact_time_after_a_touchdown(walkings):
     """A swing knee 0.1 rad/s faster than the path changes the swing knee's command by -kd_sw 0.1 and the swing
     ankle's (which keeps its foot level) by -kd_a 0.1, times t / impact in the first ``impact`` s after the
-    touchdown: nothing at the touchdown, half halfway, all after it."""
+    touchdown: nothing at the touchdown, half halfway, all after it. With ``impact_kp`` 1 the stance knee's
+    stiffness ramps in so too."""
     walking = walkings["M2"]
     prog = walk3d.program(walking.mass_class, walking.parallel)
     layout, args = prog.layout, walking.args
@@ -156,6 +157,20 @@ def test_the_damping_ramps_in_over_the_impact_time_after_a_touchdown(walkings):
         expected[[knee, ankle]] = -min(share, 1.0) * 0.1 * np.array([float(args.gains.kd_sw), float(args.gains.kd_a)])
         np.testing.assert_allclose(change, expected, atol=1e-9)
 
+    # the stance knee's stiffness: impact_kp of its kp ramps in the same way (a knee bent off its target)
+    knee = layout.legs[int(state.stance)][3]
+    bent = data.replace(qpos=data.qpos.at[layout.qpos[knee]].add(0.02))
+    yielding = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp=1.0))
+    stiff = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp=0.0))
+    changes = []
+    for share in (0.0, 0.5, 1.0):
+        later = dataclasses.replace(state, memory=dataclasses.replace(state.memory, time=jnp.asarray(share * impact)))
+        change = np.asarray(tracker.control(yielding, prog, bent, later)[0]
+                            - tracker.control(stiff, prog, bent, later)[0])
+        assert np.all(np.delete(change, knee) == 0.0)
+        changes.append(change[knee])
+    assert abs(changes[0]) > 0.5  # N m: no stiffness at the touchdown, which kp times the bend would give
+    np.testing.assert_allclose(changes[1:], [0.5 * changes[0], 0.0], atol=1e-9)
 
 def test_one_compiled_walk_lands_every_gait_at_its_step_time(walkings):
     """M2's and M1's first steps (0.36 s and 0.48 s; M1 on the untuned :data:`tracker.START` gains) land
@@ -185,6 +200,8 @@ def test_bad_gains_are_named():
         dataclasses.replace(tracker.START, kp=float("nan"))
     with pytest.raises(ValueError, match="impact"):
         dataclasses.replace(tracker.START, impact=-0.01)
+    with pytest.raises(ValueError, match="impact_kp must be in"):
+        dataclasses.replace(tracker.START, impact_kp=1.5)
 
 
 def test_unknown_lateral_numbers_are_named():

@@ -71,7 +71,8 @@ class Gains:
     torso pitch through the stance hip (kp_t, kd_t), ankles' pitch (kp_a, kd_a), ankle_w (N m s/rad on
     the stance angle's rate), place (rad of swing hip per m/s), fade (share of the step over which the
     touchdown's offsets fade), yaw_ff (the share of the path's hip-yaw torques fed forward, 0-1), impact
-    (s after a touchdown over which the sagittal joints' and the torso's damping ramp in from zero, 0: none)."""
+    (s after a touchdown over which the sagittal joints' and the torso's damping ramp in from zero, 0: none),
+    impact_kp (the share of the stance knee's kp that ramps in with the damping, 0-1; 0: all of it at once)."""
 
     kp: float
     kd: float
@@ -86,6 +87,7 @@ class Gains:
     fade: float
     yaw_ff: float = 0.0
     impact: float = 0.0
+    impact_kp: float = 0.0
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -96,6 +98,8 @@ class Gains:
             raise ValueError(f"Gains.fade must be in (0, 1], got {self.fade!r}")
         if isinstance(self.impact, (int, float)) and self.impact < 0.0:
             raise ValueError(f"Gains.impact must be at least 0 s, got {self.impact!r}")
+        if isinstance(self.impact_kp, (int, float)) and not 0.0 <= self.impact_kp <= 1.0:
+            raise ValueError(f"Gains.impact_kp must be in [0, 1], got {self.impact_kp!r}")
 
 
 #: Each model's gains, tuned by CMA-ES over batched walks on its optimal gait (``python
@@ -365,6 +369,9 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
             p, d = (gains.kp_a, gains.kd_a) if joint == 4 else (kp, kd)
             if side == 0 and joint == 2:
                 p = d = 0.0  # the stance hip holds the torso instead
+            if side == 0 and joint == 3:
+                # the landing knee yields to the impact's velocity jump instead of springing back from it
+                p = p * (1.0 - gains.impact_kp * (1.0 - damped))
             target = now.qpos[layout.qpos[j]] + fade * track.offset[3 * side + k] \
                 + (place if side == 1 and joint == 2 else 0.0)
             rate = now.qvel[layout.qvel[j]]

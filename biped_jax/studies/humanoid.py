@@ -103,6 +103,49 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
     return solution.x, settings, solution.status
 
 
+@dataclasses.dataclass(frozen=True)
+class WalkedStep:
+    """The step a model's tracker walks (:func:`walked_step`).
+
+    Attributes:
+      x: the decision vector (n,) under ``settings``.
+      settings: its gait problem's settings.
+      trajectory: the step simulated on the planar biped.
+      lift: the swing foot's lift added to the path, m: 0 on a step solved with its clearance, None for the
+        tracker's default (:data:`biped_jax.humanoid.reference.SWING_CLEARANCE`) on the study's optimum.
+      gait: the record of a step solved again (``humanoid.json``'s ``models.<name>.gait``), None for the
+        study's optimum.
+    """
+
+    x: np.ndarray
+    settings: gait_problem.GaitSettings
+    trajectory: object
+    lift: float | None
+    gait: dict | None
+
+
+def walked_step(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory=None,
+                clearance: float | None = None, touchdown_speed: float | None = None, ramp: float | None = None,
+                progress: Callable[[str], None] | None = None) -> WalkedStep:
+    """The step model ``name``'s tracker walks, from the study's optimum ``x`` under ``settings`` (simulated as
+    ``trajectory`` where given): solved again with the swing foot's ``clearance`` (m) and the landing's
+    ``touchdown_speed`` bound (m/s) where ``clearance`` is positive (:func:`cleared_gait`; ``ramp`` its
+    ``clearance_ramp``), else the optimum itself. ``clearance`` None: the model's :data:`WALK_GAITS` entry
+    (its landing bound too, unless ``touchdown_speed`` is given), the optimum for a model without one."""
+    if clearance is None:
+        clearance, landing = WALK_GAITS.get(name, (0.0, None))
+        touchdown_speed = landing if touchdown_speed is None else touchdown_speed
+    if not clearance:
+        return WalkedStep(x, settings, simulated_step(name, x, settings) if trajectory is None else trajectory,
+                          None, None)
+    x, settings, status = cleared_gait(name, x, settings, clearance, ramp, touchdown_speed, progress)
+    trajectory = simulated_step(name, x, settings)
+    return WalkedStep(x, settings, trajectory, 0.0,
+                      {"swing_clearance_m": clearance, "clearance_ramp": settings.clearance_ramp,
+                       "touchdown_forward_speed_mps": touchdown_speed, "status": status,
+                       "cost": float(gait_problem.cost(trajectory)), "added_lift_m": 0.0})
+
+
 def simulated_step(name: str, x: np.ndarray, settings: gait_problem.GaitSettings):
     """The optimal step of model ``name`` (decision vector ``x`` under ``settings``) simulated on its planar
     biped (:func:`biped_jax.gait.problem.simulate`)."""
@@ -230,20 +273,17 @@ def run_humanoid(out: Path, name: str = "M2", steps: int = 10,
         else:
             x_walked, settings_walked, _ = solved_gait(model_name, settings, gaits, say)
             walked = None
-        cleared = law == "tracker" and model_name in WALK_GAITS
-        if cleared:
-            clearance, landing = WALK_GAITS[model_name]
-            x_walked, settings_walked, gait_status = cleared_gait(model_name, x_walked, settings_walked, clearance,
-                                                                  touchdown_speed=landing, progress=say)
-        if walked is None or cleared:
-            walked = simulated_step(model_name, x_walked, settings_walked)
-        walking = (tracker_walking(model_name, x_walked, settings_walked, walked, clearance=0.0 if cleared else None)
-                   if law == "tracker" else walker_walking(model_name))
+        if law == "tracker":
+            step = walked_step(model_name, x_walked, settings_walked, walked, progress=say)
+            walking = tracker_walking(model_name, step.x, step.settings, step.trajectory, clearance=step.lift)
+            walked = step.trajectory
+        else:
+            step = None
+            walked = simulated_step(model_name, x_walked, settings_walked) if walked is None else walked
+            walking = walker_walking(model_name)
         entry, record = walk_3d(walking, walked, walk_steps, push_batch, say)
-        if cleared:
-            entry["gait"] = {"swing_clearance_m": clearance, "touchdown_forward_speed_mps": landing,
-                             "status": gait_status, "cost": float(gait_problem.cost(walked)),
-                             "added_lift_m": 0.0}
+        if step is not None and step.gait is not None:
+            entry["gait"] = step.gait
         report["models"][model_name] = entry
         outputs.write_json(out / "humanoid.json", report)
         outputs.save_npz(out / f"humanoid_walk3d_{model_name}.npz", compressed=True, t=record.t, qpos=record.qpos)
