@@ -207,3 +207,36 @@ def test_bad_gains_are_named():
 def test_unknown_lateral_numbers_are_named():
     with pytest.raises(ValueError, match="lateral_gian"):
         humanoid_study.tracker_walking("M2", np.zeros(3), None, None, lateral={"lateral_gian": 0.05})
+
+
+def test_the_walked_step_is_the_models_cleared_step_or_its_optimum(walkings, paper_solutions, short_solver,
+                                                                   monkeypatch):
+    """``walked_step``: a model without a WALK_GAITS entry (M4), or any model asked for no clearance, walks its
+    optimum as given (no lift recorded, no gait record); M2 by default walks its WALK_GAITS step, solved again
+    with that clearance and landing bound (here a stand-in solve), tracked with no lift and recorded."""
+    optimum, settings = paper_solutions[1].x, short_solver.settings
+    trajectory = walkings["M2"].args  # any object: the optimum's trajectory is passed through untouched
+    for name, clearance in (("M4", None), ("M2", 0.0)):
+        step = humanoid_study.walked_step(name, optimum, settings, trajectory, clearance=clearance)
+        assert step.x is optimum and step.trajectory is trajectory and step.settings == settings
+        assert step.lift is None and step.gait is None
+    asked = {}
+
+    def stand_in(name, x, settings_, clearance, ramp=None, touchdown_speed=None, progress=None):
+        asked.update(name=name, clearance=clearance, touchdown_speed=touchdown_speed)
+        return x + 1.0, dataclasses.replace(settings_, swing_clearance=clearance,
+                                            touchdown_forward_speed=touchdown_speed), "converged"
+    batch = jax.tree.map(lambda a: jnp.asarray(a)[None], study.paper_gait_models(study.PAPER_MODELS)[1])
+    simulated = jax.tree.map(lambda a: np.asarray(a[0]), short_solver.simulate(optimum[None], batch))
+    monkeypatch.setattr(humanoid_study, "cleared_gait", stand_in)
+    monkeypatch.setattr(humanoid_study, "simulated_step", lambda name, x, settings_: simulated)
+    step = humanoid_study.walked_step("M2", optimum, settings, trajectory)
+    clearance, landing = humanoid_study.WALK_GAITS["M2"]
+    assert asked == {"name": "M2", "clearance": clearance, "touchdown_speed": landing}
+    np.testing.assert_array_equal(step.x, optimum + 1.0)
+    assert step.settings.swing_clearance == clearance and step.trajectory is simulated and step.lift == 0.0
+    assert step.gait["swing_clearance_m"] == clearance and step.gait["touchdown_forward_speed_mps"] == landing
+    assert step.gait["status"] == "converged" and step.gait["cost"] == pytest.approx(paper_solutions[1].cost, rel=1e-6)
+    # a bound asked for overrides the entry's
+    humanoid_study.walked_step("M2", optimum, settings, trajectory, touchdown_speed=0.5)
+    assert asked["touchdown_speed"] == 0.5
