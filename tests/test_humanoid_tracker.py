@@ -141,7 +141,7 @@ def test_the_damping_ramps_in_over_the_impact_time_after_a_touchdown(walkings):
     """A swing knee 0.1 rad/s faster than the path changes the swing knee's command by -kd_sw 0.1 and the swing
     ankle's (which keeps its foot level) by -kd_a 0.1, times t / impact in the first ``impact`` s after the
     touchdown: nothing at the touchdown, half halfway, all after it. With ``impact_kp`` 1 the stance knee's
-    stiffness ramps in so too."""
+    stiffness ramps in so too, and with ``impact_kp_t`` 1 the torso's."""
     walking = walkings["M2"]
     prog = walk3d.program(walking.mass_class, walking.parallel)
     layout, args = prog.layout, walking.args
@@ -170,6 +170,21 @@ def test_the_damping_ramps_in_over_the_impact_time_after_a_touchdown(walkings):
         assert np.all(np.delete(change, knee) == 0.0)
         changes.append(change[knee])
     assert abs(changes[0]) > 0.5  # N m: no stiffness at the touchdown, which kp times the bend would give
+    np.testing.assert_allclose(changes[1:], [0.5 * changes[0], 0.0], atol=1e-9)
+    # the torso's: impact_kp_t of kp_t, through the stance hip (the torso pitched 0.02 rad off the path)
+    hip = layout.legs[int(state.stance)][2]
+    turn = np.array([[np.cos(0.02), 0.0, np.sin(0.02)], [0.0, 1.0, 0.0], [-np.sin(0.02), 0.0, np.cos(0.02)]])
+    pitched = data.replace(xmat=data.xmat.at[layout.torso].set(data.xmat[layout.torso] @ turn))
+    yielding = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp_t=1.0))
+    stiff = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp_t=0.0))
+    changes = []
+    for share in (0.0, 0.5, 1.0):
+        later = dataclasses.replace(state, memory=dataclasses.replace(state.memory, time=jnp.asarray(share * impact)))
+        change = np.asarray(tracker.control(yielding, prog, pitched, later)[0]
+                            - tracker.control(stiff, prog, pitched, later)[0])
+        assert np.all(np.delete(change, hip) == 0.0)
+        changes.append(change[hip])
+    assert abs(changes[0]) > 0.5 * float(args.gains.kp_t) * 0.02
     np.testing.assert_allclose(changes[1:], [0.5 * changes[0], 0.0], atol=1e-9)
 
 def test_one_compiled_walk_lands_every_gait_at_its_step_time(walkings):
@@ -202,6 +217,8 @@ def test_bad_gains_are_named():
         dataclasses.replace(tracker.START, impact=-0.01)
     with pytest.raises(ValueError, match="impact_kp must be in"):
         dataclasses.replace(tracker.START, impact_kp=1.5)
+    with pytest.raises(ValueError, match="impact_kp_t must be in"):
+        dataclasses.replace(tracker.START, impact_kp_t=-0.5)
 
 
 def test_unknown_lateral_numbers_are_named():

@@ -72,7 +72,8 @@ class Gains:
     the stance angle's rate), place (rad of swing hip per m/s), fade (share of the step over which the
     touchdown's offsets fade), yaw_ff (the share of the path's hip-yaw torques fed forward, 0-1), impact
     (s after a touchdown over which the sagittal joints' and the torso's damping ramp in from zero, 0: none),
-    impact_kp (the share of the stance knee's kp that ramps in with the damping, 0-1; 0: all of it at once)."""
+    impact_kp (the share of the stance knee's kp that ramps in with the damping, 0-1; 0: all of it at once),
+    impact_kp_t (the same for the torso's kp_t)."""
 
     kp: float
     kd: float
@@ -88,6 +89,7 @@ class Gains:
     yaw_ff: float = 0.0
     impact: float = 0.0
     impact_kp: float = 0.0
+    impact_kp_t: float = 0.0
 
     def __post_init__(self):
         for field in dataclasses.fields(self):
@@ -98,8 +100,10 @@ class Gains:
             raise ValueError(f"Gains.fade must be in (0, 1], got {self.fade!r}")
         if isinstance(self.impact, (int, float)) and self.impact < 0.0:
             raise ValueError(f"Gains.impact must be at least 0 s, got {self.impact!r}")
-        if isinstance(self.impact_kp, (int, float)) and not 0.0 <= self.impact_kp <= 1.0:
-            raise ValueError(f"Gains.impact_kp must be in [0, 1], got {self.impact_kp!r}")
+        for name in ("impact_kp", "impact_kp_t"):
+            value = getattr(self, name)
+            if isinstance(value, (int, float)) and not 0.0 <= value <= 1.0:
+                raise ValueError(f"Gains.{name} must be in [0, 1], got {value!r}")
 
 
 #: Each model's gains, tuned by CMA-ES over batched walks on its optimal gait (``python
@@ -382,7 +386,8 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
                 rate = -(pitch_rate + qd[leg[2]] + qd[leg[3]])
             feedback[side, joint] = p * (target - q[leg[joint]]) + damped * d * (rate - qd[leg[joint]])
             command = command.at[leg[joint]].set(now.torque[j] + feedback[side, joint])
-    torso = gains.kp_t * (now.pitch - pitch) - damped * gains.kd_t * (pitch_rate - now.qvel[4])
+    kp_t = gains.kp_t * (1.0 - gains.impact_kp_t * (1.0 - damped))
+    torso = kp_t * (now.pitch - pitch) - damped * gains.kd_t * (pitch_rate - now.qvel[4])
     command = command.at[stance[2]].add(-torso - feedback[1, 2])
     theta_rate = pitch_rate + qd[stance[2]] + qd[stance[3]]
     pace = jnp.interp(s, gait.phase, gait.stance_angle_slope) / gait.step_time - theta_rate
