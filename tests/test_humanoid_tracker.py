@@ -157,35 +157,31 @@ def test_the_damping_ramps_in_over_the_impact_time_after_a_touchdown(walkings):
         expected[[knee, ankle]] = -min(share, 1.0) * 0.1 * np.array([float(args.gains.kd_sw), float(args.gains.kd_a)])
         np.testing.assert_allclose(change, expected, atol=1e-9)
 
+    def ramped(field, moved, joint):
+        """The command's change from ``field`` 0 to 1 at ``moved`` over the impact (at t = 0, impact / 2,
+        impact): only at ``joint``, there the full term, half of it, none."""
+        changes = []
+        for share in (0.0, 0.5, 1.0):
+            later = dataclasses.replace(state, memory=dataclasses.replace(state.memory,
+                                                                          time=jnp.asarray(share * impact)))
+            yielding, stiff = (dataclasses.replace(args, gains=dataclasses.replace(args.gains, **{field: value}))
+                               for value in (1.0, 0.0))
+            change = np.asarray(tracker.control(yielding, prog, moved, later)[0]
+                                - tracker.control(stiff, prog, moved, later)[0])
+            assert np.all(np.delete(change, joint) == 0.0)
+            changes.append(change[joint])
+        np.testing.assert_allclose(changes[1:], [0.5 * changes[0], 0.0], atol=1e-9)
+        return changes[0]
+
     # the stance knee's stiffness: impact_kp of its kp ramps in the same way (a knee bent off its target)
-    knee = layout.legs[int(state.stance)][3]
-    bent = data.replace(qpos=data.qpos.at[layout.qpos[knee]].add(0.02))
-    yielding = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp=1.0))
-    stiff = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp=0.0))
-    changes = []
-    for share in (0.0, 0.5, 1.0):
-        later = dataclasses.replace(state, memory=dataclasses.replace(state.memory, time=jnp.asarray(share * impact)))
-        change = np.asarray(tracker.control(yielding, prog, bent, later)[0]
-                            - tracker.control(stiff, prog, bent, later)[0])
-        assert np.all(np.delete(change, knee) == 0.0)
-        changes.append(change[knee])
-    assert abs(changes[0]) > 0.5  # N m: no stiffness at the touchdown, which kp times the bend would give
-    np.testing.assert_allclose(changes[1:], [0.5 * changes[0], 0.0], atol=1e-9)
+    stance = layout.legs[int(state.stance)]
+    bent = data.replace(qpos=data.qpos.at[layout.qpos[stance[3]]].add(0.02))
+    assert abs(ramped("impact_kp", bent, stance[3])) > 0.5  # N m: kp times the bend, none at the touchdown
     # the torso's: impact_kp_t of kp_t, through the stance hip (the torso pitched 0.02 rad off the path)
-    hip = layout.legs[int(state.stance)][2]
     turn = np.array([[np.cos(0.02), 0.0, np.sin(0.02)], [0.0, 1.0, 0.0], [-np.sin(0.02), 0.0, np.cos(0.02)]])
     pitched = data.replace(xmat=data.xmat.at[layout.torso].set(data.xmat[layout.torso] @ turn))
-    yielding = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp_t=1.0))
-    stiff = dataclasses.replace(args, gains=dataclasses.replace(args.gains, impact_kp_t=0.0))
-    changes = []
-    for share in (0.0, 0.5, 1.0):
-        later = dataclasses.replace(state, memory=dataclasses.replace(state.memory, time=jnp.asarray(share * impact)))
-        change = np.asarray(tracker.control(yielding, prog, pitched, later)[0]
-                            - tracker.control(stiff, prog, pitched, later)[0])
-        assert np.all(np.delete(change, hip) == 0.0)
-        changes.append(change[hip])
-    assert abs(changes[0]) > 0.5 * float(args.gains.kp_t) * 0.02
-    np.testing.assert_allclose(changes[1:], [0.5 * changes[0], 0.0], atol=1e-9)
+    assert abs(ramped("impact_kp_t", pitched, stance[2])) > 0.5 * float(args.gains.kp_t) * 0.02
+
 
 def test_one_compiled_walk_lands_every_gait_at_its_step_time(walkings):
     """M2's and M1's first steps (0.36 s and 0.48 s; M1 on the untuned :data:`tracker.START` gains) land
