@@ -365,6 +365,7 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
     # already the post-impact ones, the legs' still the pre-impact ones, and full damping on that difference
     # asked up to 50 N m of the 12 kg robot's knee for the impact's few milliseconds (7x its drive's line)
     damped = jnp.where(gains.impact > 0.0, jnp.clip(state.memory.time / jnp.maximum(gains.impact, 1e-9), 0.0, 1.0), 1.0)
+    ramped = lambda share: 1.0 - share * (1.0 - damped)  # noqa: E731  (a gain's ``share`` ramped in with the damping)
     place = -gains.place * (data.qvel[0] - now.qvel[0]) * s * s
     # the walker's law for roll, yaw and arms; its sagittal terms are overwritten below (and dropped by XLA)
     command = walker.control(args.params, layout, prog.legs, data, state.memory)
@@ -377,7 +378,7 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
                 p = d = 0.0  # the stance hip holds the torso instead
             if side == 0 and joint == 3:
                 # the landing knee yields to the impact's velocity jump instead of springing back from it
-                p = p * (1.0 - gains.impact_kp * (1.0 - damped))
+                p = p * ramped(gains.impact_kp)
             target = now.qpos[layout.qpos[j]] + fade * track.offset[3 * side + k] \
                 + (place if side == 1 and joint == 2 else 0.0)
             rate = now.qvel[layout.qvel[j]]
@@ -386,8 +387,8 @@ def control(args: TrackerArgs, prog: walk3d.Program, data, state: TrackerState):
                 rate = -(pitch_rate + qd[leg[2]] + qd[leg[3]])
             feedback[side, joint] = p * (target - q[leg[joint]]) + damped * d * (rate - qd[leg[joint]])
             command = command.at[leg[joint]].set(now.torque[j] + feedback[side, joint])
-    kp_t = gains.kp_t * (1.0 - gains.impact_kp_t * (1.0 - damped))
-    torso = kp_t * (now.pitch - pitch) - damped * gains.kd_t * (pitch_rate - now.qvel[4])
+    torso = (gains.kp_t * ramped(gains.impact_kp_t) * (now.pitch - pitch)
+             - damped * gains.kd_t * (pitch_rate - now.qvel[4]))
     command = command.at[stance[2]].add(-torso - feedback[1, 2])
     theta_rate = pitch_rate + qd[stance[2]] + qd[stance[3]]
     pace = jnp.interp(s, gait.phase, gait.stance_angle_slope) / gait.step_time - theta_rate

@@ -111,8 +111,6 @@ class WalkedStep:
       x: the decision vector (n,) under ``settings``.
       settings: its gait problem's settings.
       trajectory: the step simulated on the planar biped.
-      lift: the swing foot's lift added to the path, m: 0 on a step solved with its clearance, None for the
-        tracker's default (:data:`biped_jax.humanoid.reference.SWING_CLEARANCE`) on the study's optimum.
       gait: the record of a step solved again (``humanoid.json``'s ``models.<name>.gait``), None for the
         study's optimum.
     """
@@ -120,8 +118,13 @@ class WalkedStep:
     x: np.ndarray
     settings: gait_problem.GaitSettings
     trajectory: object
-    lift: float | None
     gait: dict | None
+
+    @property
+    def lift(self) -> float | None:
+        """The swing foot's lift added to the path, m: 0 on a step solved with its clearance, None for the
+        tracker's default (:data:`biped_jax.humanoid.reference.SWING_CLEARANCE`) on the study's optimum."""
+        return None if self.gait is None else 0.0
 
 
 def walked_step(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory=None,
@@ -137,10 +140,10 @@ def walked_step(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, t
         touchdown_speed = landing if touchdown_speed is None else touchdown_speed
     if not clearance:
         return WalkedStep(x, settings, simulated_step(name, x, settings) if trajectory is None else trajectory,
-                          None, None)
+                          None)
     x, settings, status = cleared_gait(name, x, settings, clearance, ramp, touchdown_speed, progress)
     trajectory = simulated_step(name, x, settings)
-    return WalkedStep(x, settings, trajectory, 0.0,
+    return WalkedStep(x, settings, trajectory,
                       {"swing_clearance_m": clearance, "clearance_ramp": settings.clearance_ramp,
                        "touchdown_forward_speed_mps": touchdown_speed, "status": status,
                        "cost": float(gait_problem.cost(trajectory)), "added_lift_m": 0.0})
