@@ -4,7 +4,8 @@ for exact derivatives at the cost of a segment's columns rather than of the whol
 Segment k owns its grid samples (its node and the steps after it; the last segment also the step's end)
 and its shooting defect; it reads its node, the control points whose B-splines reach it and the next
 node. The boundary rows (touchdown, periodicity, impact) read the first sample (the first node and the
-first span's control points) and the last segment's columns, whose rollout they repeat. The rows are the
+first span's control points), the last segment's columns and that segment's integrated end state (the
+chain rule through it: :mod:`biped_jax.optim.local_derivatives`). The rows are the
 same functions as :func:`biped_jax.gait.rollout.simulate` and :func:`biped_jax.gait.constraints.
 constraint_groups` compute (shared code), in the problem's order by a fixed permutation; a test checks
 the split against the problem to rounding.
@@ -164,6 +165,8 @@ class _Split:
         return dynamics, step_time, outputs, after[-1]
 
     def segment(self, local, data, params):
+        """One segment's rows (r, h, g) and its integrated end state (2,), which the boundary reads of
+        the last segment."""
         model = self._model(params, local)
         _, step_time, (q, qd, _, u, force, positions), end = self._samples(local, data, model)
         speed = qd[:, ACTUATED_INDEX]
@@ -177,7 +180,7 @@ class _Split:
         h = (end - following) / jnp.asarray(_DEFECT_SCALES, end.dtype)
         g = jnp.concatenate([(groups[name] / constraints.group_scale(name)).ravel()
                              for name in constraints.SAMPLE_GROUPS])
-        return r, h, g
+        return r, h, g, end
 
     @staticmethod
     def _residuals(u, speed, model, dt):
@@ -185,19 +188,27 @@ class _Split:
 
     # -- the boundary rows
 
-    def boundary(self, columns, params):
+    def boundary(self, columns, end, params):
+        """The rows at the step's ends from the first sample's columns, the last segment's (its node and
+        control points, the columns beside x) and that segment's integrated end state ``end`` (2,)
+        (:meth:`segment`'s last output): the samples at the touchdown are that state's, so the boundary
+        holds no rollout of its own."""
         start, local = columns[:self.start_size], columns[self.start_size:]
         model = self._model(params, local)
-        data = jax.tree.map(lambda a: jnp.asarray(a[-1]), self.data)
-        dynamics, step_time, (q, qd, _, u, force, positions), _ = self._samples(local, data, model)
-        # the first sample: node 0 and the first span's control points at s = 0
+        biped = mjx_biped.with_design(self.biped, model.design)
+        dynamics = stance_dynamics(biped, self.settings.dynamics)
+        step_time = model.step_length / model.speed
+        scale = time_scale(step_time)[:, 0]                                       # (3, 1)
+        # the reference at each end: the first span's control points at s = 0, the last segment's at s = 1
         first_basis = jnp.asarray(np.stack(basis(self.settings, np.zeros(1)))[:, 0, :self.settings.degree + 1])
-        points = start[2:].reshape(self.settings.degree + 1, 4)
-        ref0 = (first_basis @ points) * time_scale(step_time)[:, 0]
+        ref0 = (first_basis @ start[2:].reshape(self.settings.degree + 1, 4)) * scale
+        points = local[2:2 + 4 * self.window].reshape(self.window, 4)
+        ref1 = (jnp.asarray(self.data["basis_grid"][-1, :, -1]) @ points) * scale
         q0, qd0 = (pinned_coordinates(value, ref, jnp) for value, ref in ((start[0], ref0[0]), (start[1], ref0[1])))
-        _, foot_velocity = dynamics.swing_foot(q[-1], qd[-1])
-        ends = {"q0": q0, "qd0": qd0, "swing_foot_end": positions[-1, 0], "swing_foot_velocity": foot_velocity,
-                "touchdown": touchdown(dynamics, q[-1], qd[-1])}
+        q1, qd1, _, _, _, positions = sample_outputs(dynamics, end[0], end[1], ref1)
+        _, foot_velocity = dynamics.swing_foot(q1, qd1)
+        ends = {"q0": q0, "qd0": qd0, "swing_foot_end": positions[0], "swing_foot_velocity": foot_velocity,
+                "touchdown": touchdown(dynamics, q1, qd1)}
         groups = constraints.boundary_groups(ends, model, self.settings)
         h = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_EQUALITIES])
         g = jnp.concatenate([groups[n] / constraints.group_scale(n) for n in _BOUNDARY_INEQUALITIES])

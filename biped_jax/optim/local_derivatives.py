@@ -2,13 +2,20 @@
 columns of x, and a few boundary rows read a few more. What a multiply-shot trajectory is: a shooting
 segment's samples depend on its node and on the control points that reach it.
 
-The Lagrangian is then a sum L = sum_k L_k(x[c_k]) + L_b(x[c_b]), so its Hessian is the sum of small
-dense blocks, one per segment, each the Hessian of L_k in its own l columns: forward-over-reverse
+The Lagrangian is then a sum L = sum_k L_k(x[c_k]) + L_b(x[c_b], e(x[c_S])), so its Hessian is the sum of
+small dense blocks, one per segment, each the Hessian of L_k in its own l columns: forward-over-reverse
 automatic differentiation with l unit directions per segment, all segments at once (``vmap``), costs l
 directions over the rollout's work where a column colouring of the whole problem needs one direction
 per colour (about 2.5 times l for a B-spline trajectory: two columns may share a colour only when no
 row of the Hessian meets both). The blocks are added into the (n, n) Hessian; the Jacobians' rows are
 placed the same way.
+
+The boundary rows may read values e that the last segment computes (a shooting segment's end state: the
+step's touchdown and periodicity read it) instead of computing them again: the boundary is differentiated
+in (its columns, e), and the chain rule through e(x[c_S]) takes e's Jacobian from the last segment's pass
+and its curvature from the last segment's Lagrangian, to which dL_b/de . e is added. The boundary's
+derivative pass then holds no copy of the segment's work (a shooting segment's rollout: half of the
+derivatives' tracing and, at 4 segments, a third of their arithmetic).
 
 :class:`LocalProblem` describes the split; :func:`derivatives` returns what
 :func:`biped_jax.optim.exact_derivatives.derivatives` returns for the problem it splits, rows in that
@@ -32,9 +39,11 @@ class LocalProblem:
     """A problem's rows split into segments and a boundary.
 
     Attributes:
-      segment: ``(x_local (l,), data_k, params) -> (r_k (a,), h_k (b,), g_k (c,))``, one segment's rows
-        (the same sizes for every segment; rows a segment does not own are computed and left out).
-      boundary: ``(x_boundary (p,), params) -> (r_b, h_b, g_b)``, the rows that are no segment's.
+      segment: ``(x_local (l,), data_k, params) -> (r_k (a,), h_k (b,), g_k (c,), e_k (k,))``, one
+        segment's rows (the same sizes for every segment; rows a segment does not own are computed and
+        left out) and the values ``e_k`` the boundary reads of the last segment (not of its linear columns).
+      boundary: ``(x_boundary (p,), e_last (k,), params) -> (r_b, h_b, g_b)``, the rows that are no
+        segment's; the last segment's columns must be among ``boundary_columns`` (or ``n``, the padding).
       segment_columns: each segment's columns of x, (S, l) int; ``n`` (one past the last column) pads a
         segment with fewer columns (a column that is always zero).
       boundary_columns: the boundary's columns, (p,) int.
@@ -68,6 +77,18 @@ class LocalProblem:
         if np.shape(self.linear_segment_h)[:1] != (len(self.linear_segment_columns),):
             raise ValueError(f"linear_segment_h needs a row of d h / d column per linear column "
                              f"({len(self.linear_segment_columns)}), got shape {np.shape(self.linear_segment_h)}")
+
+    def last_in_boundary(self, n: int) -> np.ndarray:
+        """For each column of the last segment, its position in ``boundary_columns`` (p, one past them,
+        for the padding column ``n``)."""
+        where = {int(c): i for i, c in enumerate(np.asarray(self.boundary_columns))}
+        p = len(where)
+        last = np.asarray(self.segment_columns)[-1]
+        outside = sorted({int(c) for c in last} - set(where) - {n})
+        if outside:
+            raise ValueError(f"the boundary reads the last segment's values: its columns {outside} must be "
+                             "among boundary_columns")
+        return np.asarray([where.get(int(c), p) for c in last], np.int32)
 
     @property
     def curved_segment_columns(self) -> np.ndarray:
@@ -109,10 +130,16 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
     n = x.shape[0]
     segments, width = local.segment_columns.shape
     padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+    columns = jnp.asarray(local.segment_columns)
+    boundary = local.boundary_columns
+    p = boundary.shape[0]
+    # the values the boundary reads of the last segment, by a plain evaluation of it (its derivatives come
+    # from the segments' pass below)
+    end = local.segment(padded[columns[-1]], jax.tree.map(lambda a: a[-1], local.segment_data), params)[3]
     sizes = jax.eval_shape(local.segment, jnp.zeros(width, x.dtype), jax.tree.map(lambda a: a[0], local.segment_data),
                            params)
-    ends = jax.eval_shape(local.boundary, jnp.zeros(local.boundary_columns.shape[0], x.dtype), params)
-    b, c = (s.shape[0] for s in sizes[1:])
+    ends = jax.eval_shape(local.boundary, jnp.zeros(p, x.dtype), end, params)
+    b, c = (s.shape[0] for s in sizes[1:3])
     total_h, total_g = segments * b + ends[1].shape[0], segments * c + ends[2].shape[0]
     y_split = _lifted(local.order_h, y, total_h)
     z_split = _lifted(local.order_g, z, total_g)
@@ -120,37 +147,49 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
     beside = 0.0 if local.energy_weight is None else local.energy_weight(params)  # r . r's weight beside x[i]
     residual_weight = weight if local.linear_objective is None else weight * beside
 
-    def lagrangian(function, y_part, z_part, data):
+    def lagrangian(function, y_part, z_part, end_part=None):
         def value(point):
-            r, h, g = function(point, data) if data is not None else function(point)
-            return residual_weight * (r @ r) + y_part @ h + z_part @ g, (r, h, g)
+            rows = function(point)
+            r, h, g = rows[:3]
+            extra = 0.0 if end_part is None else end_part @ rows[3]
+            return residual_weight * (r @ r) + y_part @ h + z_part @ g + extra, rows
         return value
+
+    # the boundary in (its columns, e): its rows, their derivatives in both and dL_b / de
+    (rows_e, grad_e), ((_, jh_e, jg_e), hess_e) = _second_order(
+        lagrangian(lambda q: local.boundary(q[:p], q[p:], params), y_split[segments * b:], z_split[segments * c:]),
+        jnp.concatenate([padded[boundary], end]), jnp.eye(p + end.shape[0], dtype=x.dtype))
+    end_weight = jnp.zeros((segments, end.shape[0]), x.dtype).at[-1].set(grad_e[p:])
 
     curved = local.curved_segment_columns
     linear = np.asarray(local.linear_segment_columns, int)
     in_place = np.argsort(np.concatenate([curved, linear]))  # the tangents back in the segment's column order
     unit = jnp.eye(width, dtype=x.dtype)
 
-    def one_segment(columns, data, y_k, z_k):
-        """((rows, grad L_k), ((None, jac h_k (l, b), jac g_k (l, c)), the curved rows of L_k's Hessian (c, l)))."""
+    def one_segment(columns, data, y_k, z_k, end_k):
+        """((rows, grad L_k), ((None, jac h_k (l, b), jac g_k (l, c), jac e_k (l, k)), the curved rows of
+        L_k's Hessian (c, l))), L_k with dL_b / de . e_k for the last segment (the chain rule's curvature)."""
         point = padded[columns]
-        function = lambda p, d: local.segment(p, d, params)  # noqa: E731
-        (rows, grad), ((_, jh, jg), hess) = _second_order(lagrangian(function, y_k, z_k, data), point, unit[curved])
-        if linear.size:  # their Jacobian columns are constants (their Hessian rows are zero)
+        function = lambda p, d=data: local.segment(p, d, params)  # noqa: E731
+        (rows, grad), ((_, jh, jg, je), hess) = _second_order(lagrangian(function, y_k, z_k, end_k), point,
+                                                               unit[curved])
+        if linear.size:  # their Jacobian columns are constants (their Hessian rows are zero; e reads none)
             jh_linear = jnp.asarray(local.linear_segment_h, x.dtype)
             jh = jnp.concatenate([jh, jh_linear])[in_place]
             jg = jnp.concatenate([jg, jnp.zeros((linear.size, jg.shape[1]), x.dtype)])[in_place]
-        return (rows, grad), ((None, jh, jg), hess)
+            je = jnp.concatenate([je, jnp.zeros((linear.size, je.shape[1]), x.dtype)])[in_place]
+        return (rows, grad), ((None, jh, jg, je), hess)
 
-    (rows_k, grad_k), ((_, jh_k, jg_k), hess_k) = jax.vmap(one_segment)(
-        jnp.asarray(local.segment_columns), local.segment_data, y_split[:segments * b].reshape(segments, b),
-        z_split[:segments * c].reshape(segments, c))
-    boundary = local.boundary_columns
-    (rows_e, grad_e), ((_, jh_e, jg_e), hess_e) = _second_order(
-        lagrangian(lambda p: local.boundary(p, params), y_split[segments * b:], z_split[segments * c:], None),
-        padded[boundary], jnp.eye(boundary.shape[0], dtype=x.dtype))
+    (rows_k, grad_k), ((_, jh_k, jg_k, je_k), hess_k) = jax.vmap(one_segment)(
+        columns, local.segment_data, y_split[:segments * b].reshape(segments, b),
+        z_split[:segments * c].reshape(segments, c), end_weight)
+    # the chain rule through e: de / d(boundary columns), (p, k), from the last segment's pass
+    de = jnp.zeros((p + 1, end.shape[0]), x.dtype).at[local.last_in_boundary(n)].add(je_k[-1])[:p]
+    grad_e = grad_e[:p]  # dL_b / de . de / dx is in the last segment's gradient (its L_k holds it)
+    jh_e, jg_e = (j[:p] + de @ j[p:] for j in (jh_e, jg_e))
+    cross = hess_e[:p, p:] @ de.T
+    hess_e = hess_e[:p, :p] + cross + cross.T + de @ hess_e[p:, p:] @ de.T
 
-    columns = jnp.asarray(local.segment_columns)
     grad = jnp.zeros(n + 1, x.dtype).at[columns].add(grad_k).at[boundary].add(grad_e)[:n]
     hessian = (jnp.zeros((n + 1, n + 1), x.dtype).at[columns[:, curved, None], columns[:, None, :]].add(hess_k)
                .at[boundary[:, None], boundary[None, :]].add(hess_e))[:n, :n]
