@@ -172,19 +172,22 @@ def pytest_collection_modifyitems(config, items):
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
     """With BIPED_JAX_TEST_COMPILES=DIR, each test's compilations (program names, compile or cache-load
-    seconds; a fixture's in the test that first sets it up) are appended to DIR/<worker>.jsonl: where
-    the suite's time goes on an empty cache. Off by default."""
+    seconds; a fixture's in the test that first sets it up) and its start and end (Unix time, s: the
+    workers' schedule, their idle time) are appended to DIR/<worker>.jsonl: where the suite's time goes on
+    an empty cache. Off by default."""
     folder = os.environ.get("BIPED_JAX_TEST_COMPILES")
     if not folder:
         yield
         return
     import json
+    import time
 
     from biped_jax.report.compile_profile import profile_compiles
+    started = time.time()
     with profile_compiles() as profile:
         yield
     summary = profile.summary()
-    row = {"test": item.nodeid, "compilations": summary["compilations"],
+    row = {"test": item.nodeid, "started": started, "ended": time.time(), "compilations": summary["compilations"],
            "seconds_compiled": summary["seconds_compiled"], "seconds": summary["seconds"],
            "programs": {name: round(p["seconds"], 2) for name, p in summary["programs"].items() if p["seconds"] > 0.5}}
     Path(folder).mkdir(parents=True, exist_ok=True)
