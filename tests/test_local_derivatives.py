@@ -86,3 +86,21 @@ def test_linear_columns_come_with_their_constant_jacobian_rows():
     assert np.shape(local.linear_segment_h) == (len(local.linear_segment_columns), 2)
     with pytest.raises(ValueError, match="linear_segment_h"):
         dataclasses.replace(local, linear_segment_h=((-1.0, 0.0),))
+
+
+def test_the_boundary_reads_the_last_segments_end_through_columns_it_holds():
+    """The boundary's rows read the last segment's end state, so the chain rule needs that segment's
+    columns among the boundary's (the padding column excepted): a position of each there (one past them
+    for the padding), and a split without one is refused, naming it."""
+    solver, _, _ = _space(SPACES["4 segments"])
+    local = segmented.local_problem(solver.biped, solver.settings)
+    n = solver.settings.size
+    positions = local.last_in_boundary(n)
+    last = local.segment_columns[-1]
+    held = last != n
+    np.testing.assert_array_equal(local.boundary_columns[positions[held]], last[held])
+    assert np.all(positions[~held] == len(local.boundary_columns)) and (~held).sum() == 2  # the next node: none
+    missing = int(last[0])
+    cut = dataclasses.replace(local, boundary_columns=local.boundary_columns[local.boundary_columns != missing])
+    with pytest.raises(ValueError, match=rf"its columns \[{missing}\] must be among boundary_columns"):
+        cut.last_in_boundary(n)

@@ -79,10 +79,11 @@ class LocalProblem:
                              f"({len(self.linear_segment_columns)}), got shape {np.shape(self.linear_segment_h)}")
 
     def last_in_boundary(self, n: int) -> np.ndarray:
-        """For each column of the last segment, its position in ``boundary_columns`` (p, one past them,
-        for the padding column ``n``)."""
+        """For each column of the last segment, a position of it in ``boundary_columns`` (p, one past
+        them, for the padding column ``n``; of a column held twice, one: the boundary's derivatives in the
+        two are added into the column's)."""
         where = {int(c): i for i, c in enumerate(np.asarray(self.boundary_columns))}
-        p = len(where)
+        p = len(self.boundary_columns)
         last = np.asarray(self.segment_columns)[-1]
         outside = sorted({int(c) for c in last} - set(where) - {n})
         if outside:
