@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from biped_jax.dynamics import mjx_biped
+from biped_jax.dynamics import interface, mjx_biped
 from biped_jax.gait import problem as gait_problem
 
 #: Samples of the reference over the step's phase: fixed, so every gait shares one program.
@@ -94,6 +94,17 @@ def gait_reference(x, model: gait_problem.GaitModel, settings: gait_problem.Gait
                          speed=jnp.asarray(float(model.speed)))
 
 
+@jax.jit
+def _swing_foot(dynamics, states):
+    """The swing foot's (x, z), (S, 2) m, and their Jacobian with respect to the pinned coordinates,
+    (S, 2, 5), at ``states`` (S, 5), by the planar chain's closed forms (``dynamics``, equal to MJX's
+    kinematics: tests/test_planar_chain.py), one program for every design: MJX's kinematics under
+    ``jacfwd`` took some 20 s a call on a 2-core CPU, op by op or compiled."""
+    def foot(q):
+        return dynamics.swing_foot(q, jnp.zeros_like(q))[0]
+    return jax.vmap(jax.jacfwd(foot))(states), jax.vmap(foot)(states)
+
+
 def clearance_offset(model: gait_problem.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray,
                      mass_class: str = "12kg", clearance: float = SWING_CLEARANCE) -> np.ndarray:
     """Offsets of (H1, K1, H2, K2), shape (S, 4), rad, that lift the swing foot to at least the clearance
@@ -104,9 +115,8 @@ def clearance_offset(model: gait_problem.GaitModel, q: np.ndarray, grid: np.ndar
     the gait's design."""
     biped = mjx_biped.with_design(mjx_biped.load_planar_biped(mass_class), model.design)
     states = jnp.asarray(np.column_stack([np.interp(phase, grid, q[:, k]) for k in range(q.shape[1])]))
-    foot = lambda q_: mjx_biped.site_position(biped.pinned, q_, "foot2")[jnp.array([0, 2])]  # noqa: E731
-    jacobians = np.asarray(jax.vmap(jax.jacfwd(foot))(states))[:, :, 3:5]
-    height = np.asarray(jax.vmap(foot)(states))[:, 1]
+    jacobians, at = (np.asarray(a) for a in _swing_foot(interface.stance_dynamics(biped, "chain"), states))
+    jacobians, height = jacobians[:, :, 3:5], at[:, 1]
     profile = clearance * np.minimum(1.0, np.minimum(phase, 1.0 - phase) / CLEARANCE_RAMP)
     lift = np.column_stack([np.zeros_like(phase), np.maximum(profile - height, 0.0)])
     normal = jacobians @ np.swapaxes(jacobians, 1, 2) + CLEARANCE_DAMPING**2 * np.eye(2)
