@@ -176,6 +176,13 @@ def angular_momentum_about(model, q, qd, point):
     return jnp.sum(orbital + model.body_inertia[:, 1] * rate)
 
 
+@jax.jit  # one program for every backend's landing: op by op, MJX compiles each operation alone
+def momenta_about_the_landing_foot(model, q, qd_before, qd_after):
+    """The angular momentum about foot 2 before and after the touchdown (floating coordinates)."""
+    foot2 = mjx_biped.site_position(model, q, "foot2")
+    return angular_momentum_about(model, q, qd_before, foot2), angular_momentum_about(model, q, qd_after, foot2)
+
+
 @pytest.fixture(scope="module", params=BACKENDS)
 def landing(biped12, request):
     """The touchdown at (Q, QD) by each backend (one compiled program for each JAX backend)."""
@@ -187,10 +194,8 @@ def landing(biped12, request):
 
 @pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landing):
-    floating = biped12.floating
-    foot2 = mjx_biped.site_position(floating, landing.floating_q, "foot2")
-    before = angular_momentum_about(floating, landing.floating_q, landing.floating_qd_before, foot2)
-    after = angular_momentum_about(floating, landing.floating_q, landing.floating_qd_after, foot2)
+    before, after = momenta_about_the_landing_foot(biped12.floating, landing.floating_q, landing.floating_qd_before,
+                                                   landing.floating_qd_after)
     assert abs(float(before)) > 0.1  # a real test: there is momentum to conserve
     assert float(after) == pytest.approx(float(before), abs=EXACT)
 
