@@ -228,11 +228,18 @@ def test_impact_relabels_legs_and_reports_the_old_stance_foot(biped12, landing):
     # New leg 1 is old leg 2: the new stance knee rate is old knee2's post-impact rate, and so on.
     np.testing.assert_allclose(landing.qd[1:], qf_after[jnp.array([6, 5, 3, 4])], atol=EXACT)
     np.testing.assert_allclose(landing.qd[0], qf_after[2] + qf_after[5] + qf_after[6], atol=EXACT)
-    jac1 = mjx_biped.foot_jacobian(biped12.floating, landing.floating_q, "foot1")
-    np.testing.assert_allclose(landing.old_stance_foot_velocity, jac1 @ qf_after, atol=EXACT)
+    old_stance, swing_velocity = feet_after_the_landing(biped12.floating, biped12.pinned, landing.floating_q, qf_after,
+                                                        landing.q, landing.qd)
+    np.testing.assert_allclose(landing.old_stance_foot_velocity, old_stance, atol=EXACT)
     # the new stance foot sits at the origin of the next step's pinned chain
-    _, swing_velocity = mjx_biped.swing_foot(biped12.pinned, landing.q, landing.qd)
     np.testing.assert_allclose(swing_velocity, landing.old_stance_foot_velocity, atol=1e-9)
+
+
+@jax.jit  # one program for every backend's landing
+def feet_after_the_landing(floating, pinned, floating_q, floating_qd, q, qd):
+    """The old stance foot's velocity after the touchdown (floating coordinates) and the new swing foot's
+    (the next step's pinned ones)."""
+    return mjx_biped.foot_jacobian(floating, floating_q, "foot1") @ floating_qd, mjx_biped.swing_foot(pinned, q, qd)[1]
 
 
 # ----------------------------------------------------------------------------- variants agree
