@@ -56,30 +56,45 @@ def test_every_quantity_equals_mjx(designed_biped, seed):
     rng = np.random.default_rng(seed)
     q, qd, u = (jnp.asarray(rng.normal(size=5)), jnp.asarray(3 * rng.normal(size=5)),
                 jnp.asarray(5 * rng.normal(size=4)))
+    foot1 = mjx.name2id(designed, mjx_biped.registry.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
+    chain, reference = (jax.tree.map(np.asarray, quantities) for quantities in
+                        _both_backends(chain_dynamics, mjx_dynamics, q, qd, u, foot1))
+    # MJX's Euler integrates damping implicitly; its forward pass's qacc is the explicit one
+    np.testing.assert_allclose(chain["qdd"], reference["qdd"], rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(chain["mass"], reference["mass"], atol=1e-12)
+    np.testing.assert_allclose(chain["bias"], reference["bias"], atol=1e-10)
+    assert float(np.linalg.norm(reference["force"])) > 1.0
+    np.testing.assert_allclose(chain["force"], reference["force"], atol=1e-9)
+    np.testing.assert_allclose(chain["sites"], reference["sites"], atol=1e-14)
+    c_mass, c_bias, c_data = c_dynamics.terms(np.asarray(q), np.asarray(qd))
+    np.testing.assert_allclose(c_mass, reference["mass"], atol=1e-12)
+    np.testing.assert_allclose(c_bias, reference["bias"], atol=1e-10)
+    c_force, c_sites = c_dynamics.outputs(q, qd, chain["qdd"], c_data)
+    np.testing.assert_allclose(c_force, reference["force"], atol=1e-9)
+    np.testing.assert_allclose(c_sites, reference["sites"], atol=1e-14)
+    np.testing.assert_allclose(chain["energy"], reference["energy"], rtol=1e-12)
+    np.testing.assert_allclose(chain["foot1"], reference["foot1"], atol=1e-14)
+
+
+@functools.partial(jax.jit, static_argnums=5)  # one program for every seed: op by op, MJX compiles each operation alone
+def _both_backends(chain_dynamics, mjx_dynamics, q, qd, u, foot1: int):
+    """What :func:`test_every_quantity_equals_mjx` compares, by the chain and by MJX: forward dynamics
+    (the chain's from its closed forms, MJX's forward pass's qacc), the backends' terms and outputs at
+    MJX's accelerations, the mechanical energy and the site foot1 (x, z)."""
+    designed = mjx_dynamics.pinned
     data = mjx.forward(designed, mjx.make_data(designed).replace(qpos=q, qvel=qd, ctrl=u))
     qdd, _ = planar_chain.forward_dynamics(chain_dynamics.chain, designed, q, qd, u)
-    # MJX's Euler integrates damping implicitly; its forward pass's qacc is the explicit one
-    np.testing.assert_allclose(qdd, data.qacc, rtol=1e-10, atol=1e-10)
-    mass, bias, state = chain_dynamics.terms(q, qd)
-    reference_mass, reference_bias, reference_data = mjx_dynamics.terms(q, qd)
-    np.testing.assert_allclose(mass, reference_mass, atol=1e-12)
-    np.testing.assert_allclose(bias, reference_bias, atol=1e-10)
-    force, sites = chain_dynamics.outputs(q, qd, qdd, state)
-    reference_force, reference_sites = mjx_dynamics.outputs(q, qd, qdd, reference_data)
-    assert float(jnp.linalg.norm(reference_force)) > 1.0
-    np.testing.assert_allclose(force, reference_force, atol=1e-9)
-    np.testing.assert_allclose(sites, reference_sites, atol=1e-14)
-    c_mass, c_bias, c_data = c_dynamics.terms(np.asarray(q), np.asarray(qd))
-    np.testing.assert_allclose(c_mass, reference_mass, atol=1e-12)
-    np.testing.assert_allclose(c_bias, reference_bias, atol=1e-10)
-    c_force, c_sites = c_dynamics.outputs(q, qd, np.asarray(qdd), c_data)
-    np.testing.assert_allclose(c_force, reference_force, atol=1e-9)
-    np.testing.assert_allclose(c_sites, reference_sites, atol=1e-14)
-    np.testing.assert_allclose(planar_chain.mechanical_energy(chain_dynamics.chain, designed, state, qd),
-                               mjx_biped.mechanical_energy(designed, q, qd), rtol=1e-12)
-    foot1 = mjx.name2id(designed, mjx_biped.registry.mujoco.mjtObj.mjOBJ_SITE, "foot1")  # not a gait site
-    np.testing.assert_allclose(planar_chain.site_positions(chain_dynamics.chain, designed, state, ("foot1",))[0],
-                               data.site_xpos[foot1][jnp.array([0, 2])], atol=1e-14)
+    found = {}
+    for name, dynamics, accelerations in (("chain", chain_dynamics, qdd), ("mjx", mjx_dynamics, data.qacc)):
+        mass, bias, state = dynamics.terms(q, qd)
+        force, sites = dynamics.outputs(q, qd, qdd, state)
+        found[name] = {"qdd": accelerations, "mass": mass, "bias": bias, "force": force, "sites": sites}
+    state = chain_dynamics.terms(q, qd)[2]
+    found["chain"]["energy"] = planar_chain.mechanical_energy(chain_dynamics.chain, designed, state, qd)
+    found["mjx"]["energy"] = mjx_biped.mechanical_energy(designed, q, qd)
+    found["chain"]["foot1"] = planar_chain.site_positions(chain_dynamics.chain, designed, state, ("foot1",))[0]
+    found["mjx"]["foot1"] = data.site_xpos[foot1][jnp.array([0, 2])]
+    return found["chain"], found["mjx"]
 
 
 @pytest.fixture(scope="module")
