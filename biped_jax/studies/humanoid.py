@@ -372,9 +372,9 @@ def tracker_walking(name: str, x: np.ndarray, settings: gait_problem.GaitSetting
     :class:`biped_jax.humanoid.walker.WalkerParams`, over :func:`biped_jax.humanoid.tracker.lateral_for`'s),
     the swing foot's ``clearance`` (m, default :data:`biped_jax.humanoid.reference.SWING_CLEARANCE`), two
     drives at the joints ``parallel`` (default :data:`biped_jax.humanoid.tracker.DRIVES`). ``earlier``: this
-    function's walk of the same step, clearance and drives, whose path and gait reference are reused (some
-    5 s on a 2-core CPU, the path's inverse dynamics in MuJoCo C most of it; neither depends on the gains or
-    the lateral numbers), else both are computed."""
+    function's walk of the same step, clearance and drives, whose path and gait reference are reused (both
+    together some 6 s on a 2-core CPU; neither depends on the gains or the lateral numbers), else both are
+    computed."""
     from biped_jax.humanoid import reference, tracker, walk3d
     mass_class, model = paper_model(name)
     params, lateral = walk_params(name), {**tracker.lateral_for(name), **(lateral or {})}
