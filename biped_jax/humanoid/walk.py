@@ -103,6 +103,11 @@ def _chunk_program(mass_class: str):
     return mj_model, layout, advance
 
 
+#: Compiled once (the models are arguments): MJX run op by op compiles every operation alone.
+_pinned_to_floating = jax.jit(mjx_biped.pinned_to_floating)
+_forward = jax.jit(mjx.forward)
+
+
 def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitReference, mass_class: str):
     """(qpos, qvel) of the planarised humanoid at the optimal step's start, leg l standing at x = 0."""
     step_time = float(reference.step_time)
@@ -110,7 +115,7 @@ def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitRefer
     qd0 = planar_biped.pinned_coordinates(reference.stance_angle_slope[0] / step_time,
                                           np.asarray(reference.joint_slope[0], dtype=float) / step_time)
     pinned = mjx_biped.load_planar_biped(mass_class).pinned
-    qf, qfd = (np.asarray(a) for a in mjx_biped.pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
+    qf, qfd = (np.asarray(a) for a in _pinned_to_floating(pinned, jnp.asarray(q0), jnp.asarray(qd0)))
     qpos, qvel = np.zeros(mj_model.nq), np.zeros(mj_model.nv)
     columns = sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd
@@ -131,7 +136,7 @@ def replay(reference: GaitReference, mass_class: str = "12kg", steps: int = 10, 
     mj_model, layout, advance = _chunk_program(mass_class)
     model = registry.put_mjx_model(mj_model)
     qpos, qvel = initial_state(mj_model, layout, reference, mass_class)
-    data = mjx.forward(model, mjx.make_data(model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
+    data = _forward(model, mjx.make_data(model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
     support = Support(stance=jnp.asarray(0), stance_angle=reference.stance_angle[0], offset=jnp.zeros(4))
     gains = jax.tree.map(jnp.asarray, gains)
     limit = 2.0 * steps * float(reference.step_time)
