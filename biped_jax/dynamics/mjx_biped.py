@@ -116,6 +116,11 @@ def check_shape(name: str, value, shape: tuple, xp=jnp) -> jax.Array:
     return value
 
 
+#: MJX's forward pass, compiled (the model an argument: one program per model shape). Op by op, MJX
+#: compiles every operation alone.
+forward = jax.jit(mjx.forward)
+
+
 def _positions(model, q):
     q = check_shape("q", q, (model.nq,))
     data = mjx.make_data(model).replace(qpos=q)

@@ -147,12 +147,15 @@ class _Split:
     def _extra(self, local):
         return local[local.shape[0] - self.spec.columns:]
 
+    def _dynamics(self, model):
+        """(the stance dynamics of ``model``'s design, its step time in s)."""
+        return (stance_dynamics(mjx_biped.with_design(self.biped, model.design), self.settings.dynamics),
+                model.step_length / model.speed)
+
     def _samples(self, local, data, model):
         """The segment's samples: (q, qd, qdd, u, force, positions) at its per + 1 grid points and the
         state integrated to its end (2,)."""
-        biped = mjx_biped.with_design(self.biped, model.design)
-        dynamics = stance_dynamics(biped, self.settings.dynamics)
-        step_time = model.step_length / model.speed
+        dynamics, step_time = self._dynamics(model)
         node, points = local[:2], local[2:2 + 4 * self.window].reshape(self.window, 4)
         scale = time_scale(step_time)
         at_grid = jnp.einsum("dpw,wj->dpj", data["basis_grid"], points) * scale   # (3, per + 1, 4)
@@ -195,9 +198,7 @@ class _Split:
         holds no rollout of its own."""
         start, local = columns[:self.start_size], columns[self.start_size:]
         model = self._model(params, local)
-        biped = mjx_biped.with_design(self.biped, model.design)
-        dynamics = stance_dynamics(biped, self.settings.dynamics)
-        step_time = model.step_length / model.speed
+        dynamics, step_time = self._dynamics(model)
         scale = time_scale(step_time)[:, 0]                                       # (3, 1)
         # the reference at each end: the first span's control points at s = 0, the last segment's at s = 1
         first_basis = jnp.asarray(np.stack(basis(self.settings, np.zeros(1)))[:, 0, :self.settings.degree + 1])

@@ -103,9 +103,8 @@ def _chunk_program(mass_class: str):
     return mj_model, layout, advance
 
 
-#: Compiled once (the models are arguments): MJX run op by op compiles every operation alone.
+#: Compiled once (the model an argument): MJX run op by op compiles every operation alone.
 _pinned_to_floating = jax.jit(mjx_biped.pinned_to_floating)
-_forward = jax.jit(mjx.forward)
 
 
 def initial_state(mj_model: mujoco.MjModel, layout: Layout, reference: GaitReference, mass_class: str):
@@ -136,7 +135,7 @@ def replay(reference: GaitReference, mass_class: str = "12kg", steps: int = 10, 
     mj_model, layout, advance = _chunk_program(mass_class)
     model = registry.put_mjx_model(mj_model)
     qpos, qvel = initial_state(mj_model, layout, reference, mass_class)
-    data = _forward(model, mjx.make_data(model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
+    data = mjx_biped.forward(model, mjx.make_data(model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
     support = Support(stance=jnp.asarray(0), stance_angle=reference.stance_angle[0], offset=jnp.zeros(4))
     gains = jax.tree.map(jnp.asarray, gains)
     limit = 2.0 * steps * float(reference.step_time)

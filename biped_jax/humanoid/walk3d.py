@@ -21,6 +21,7 @@ import mujoco
 import numpy as np
 
 from biped_jax.drives import model as drive_model
+from biped_jax.dynamics import mjx_biped
 from biped_jax.humanoid import free_base, walker
 from biped_jax.robots import registry
 
@@ -172,7 +173,7 @@ def _program(mass_class: str, parallel: tuple[str, ...]) -> Program:
     legs = walker.Legs.of(mj_model)
     model = registry.put_mjx_model(mj_model)
     # MJX keeps a fixed set of contact slots (geom pairs) and rows per slot: each foot's rows, found once
-    slots = registry.jax_fields(_forward(model, mjx.make_data(model)))
+    slots = registry.jax_fields(mjx_biped.forward(model, mjx.make_data(model)))
     geoms, first, size = (np.asarray(a) for a in (slots.contact.geom, slots.contact.efc_address, slots.contact.dim))
     rows = np.zeros((2, int(slots.efc_J.shape[0])))
     for pair, start, dim in zip(geoms, first, size):
@@ -229,13 +230,12 @@ def initial(prog: Program, params: walker.WalkerParams, qpos: np.ndarray | None 
     memory = walker.WalkerMemory(stance=jnp.asarray(0), time=jnp.asarray(0.0), lift=jnp.asarray(feet[1] - qpos[:3]),
                                  foot=jnp.asarray(feet[0]), steps=jnp.asarray(0),
                                  knee=jnp.asarray(qpos[prog.layout.qpos[prog.layout.legs[0][3]]]))
-    mjx_data = _forward(prog.model, mjx.make_data(prog.model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
+    mjx_data = mjx_biped.forward(prog.model,
+                                 mjx.make_data(prog.model).replace(qpos=jnp.asarray(qpos), qvel=jnp.asarray(qvel)))
     # committed to the device, as the compiled walk's own carry is after a chunk: an uncommitted first carry
     # is another signature, and the second chunk would compile the walk again
     return jax.device_put((mjx_data, memory), jax.devices()[0])
 
-
-_forward = jax.jit(lambda model, data: mjx.forward(model, data))
 
 
 def fixed_arrays(tree):

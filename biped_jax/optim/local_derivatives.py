@@ -134,13 +134,12 @@ def derivatives(local: LocalProblem, x, params, weight, y, z, blocks: bool = Fal
     columns = jnp.asarray(local.segment_columns)
     boundary = local.boundary_columns
     p = boundary.shape[0]
-    # the values the boundary reads of the last segment, by a plain evaluation of it (its derivatives come
-    # from the segments' pass below)
-    end = local.segment(padded[columns[-1]], jax.tree.map(lambda a: a[-1], local.segment_data), params)[3]
-    sizes = jax.eval_shape(local.segment, jnp.zeros(width, x.dtype), jax.tree.map(lambda a: a[0], local.segment_data),
-                           params)
+    # the values the boundary reads of the last segment (and every segment's row sizes), by a plain
+    # evaluation of it: their derivatives come from the segments' pass below
+    last = local.segment(padded[columns[-1]], jax.tree.map(lambda a: a[-1], local.segment_data), params)
+    end = last[3]
     ends = jax.eval_shape(local.boundary, jnp.zeros(p, x.dtype), end, params)
-    b, c = (s.shape[0] for s in sizes[1:3])
+    b, c = (rows.shape[0] for rows in last[1:3])
     total_h, total_g = segments * b + ends[1].shape[0], segments * c + ends[2].shape[0]
     y_split = _lifted(local.order_h, y, total_h)
     z_split = _lifted(local.order_g, z, total_g)
