@@ -200,24 +200,31 @@ def test_impact_conserves_angular_momentum_about_the_landing_foot(biped12, landi
     assert float(after) == pytest.approx(float(before), abs=EXACT)
 
 
+@jax.jit  # one program for every backend's landing
+def landing_foot_jacobian(floating, qf):
+    return mjx_biped.foot_jacobian(floating, qf, "foot2")
+
+
 @pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_leaves_the_landing_foot_at_rest(biped12, landing):
-    jac = jax.jit(mjx_biped.foot_jacobian, static_argnums=2)(biped12.floating, landing.floating_q, "foot2")
+    jac = landing_foot_jacobian(biped12.floating, landing.floating_q)
     assert float(jnp.linalg.norm(jac @ landing.floating_qd_before)) > 0.1
     np.testing.assert_allclose(jac @ landing.floating_qd_after, 0.0, atol=EXACT)
+
+
+@jax.jit  # one program for every backend's landing (op by op, MJX compiles each operation alone)
+def impact_jumps(floating, qf, before, after):
+    """M (qd+ - qd-), the landing foot's Jacobian and the jump of the linear momentum, floating coordinates."""
+    com_velocity = lambda qd: jax.jvp(functools.partial(mjx_biped.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
+    return (mjx_biped.mass_matrix(floating, qf) @ (after - before), mjx_biped.foot_jacobian(floating, qf, "foot2"),
+            jnp.sum(floating.body_mass) * (com_velocity(after) - com_velocity(before)))
 
 
 @pytest.mark.xdist_group("mjx_quickstart")
 def test_impact_momentum_balance(biped12, landing):
     """M (qd+ - qd-) = J^T Lambda, and the linear momentum jumps by the impulse."""
-    floating = biped12.floating
-
-    @jax.jit  # one program: op by op, MJX compiles each operation alone (twice the time)
-    def jumps(qf, before, after):
-        com_velocity = lambda qd: jax.jvp(functools.partial(mjx_biped.center_of_mass, floating), (qf,), (qd,))[1]  # noqa: E731
-        return (mjx_biped.mass_matrix(floating, qf) @ (after - before), mjx_biped.foot_jacobian(floating, qf, "foot2"),
-                jnp.sum(floating.body_mass) * (com_velocity(after) - com_velocity(before)))
-    jump, jac, momentum_jump = jumps(landing.floating_q, landing.floating_qd_before, landing.floating_qd_after)
+    jump, jac, momentum_jump = impact_jumps(biped12.floating, landing.floating_q, landing.floating_qd_before,
+                                            landing.floating_qd_after)
     np.testing.assert_allclose(jump, jac.T @ landing.impulse, atol=EXACT)
     np.testing.assert_allclose(momentum_jump[jnp.array([0, 2])], landing.impulse, atol=EXACT)
 

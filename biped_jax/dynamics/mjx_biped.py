@@ -121,6 +121,10 @@ def check_shape(name: str, value, shape: tuple, xp=jnp) -> jax.Array:
 forward = jax.jit(mjx.forward)
 
 
+# MJX's kinematics and single-support terms as jitted functions: a gait rollout and the touchdown call
+# them at many points (four per Runge-Kutta step, a site at a time), and JAX then traces and transforms
+# each one's program once per signature instead of at every call (as the planar chain's, planar_chain.py).
+@jax.jit
 def _positions(model, q):
     q = check_shape("q", q, (model.nq,))
     data = mjx.make_data(model).replace(qpos=q)
@@ -226,6 +230,14 @@ def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Arra
 
 # ----------------------------------------------------------------------------- the MJX backend
 
+@jax.jit  # traced once per signature (see _positions)
+def _terms(pinned, q, qd):
+    """(M (nv, nv), qfrc_bias - qfrc_passive (nv,), the forward pass's data) at (q, qd)."""
+    data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
+    data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
+    return mjx.full_m(pinned, data), data.qfrc_bias - data.qfrc_passive, data
+
+
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class MjxDynamics:
@@ -251,9 +263,7 @@ class MjxDynamics:
         return self.biped.pinned
 
     def terms(self, q, qd):
-        data = mjx.make_data(self.pinned).replace(qpos=q, qvel=qd)
-        data = mjx.fwd_velocity(self.pinned, mjx.fwd_position(self.pinned, data))
-        return mjx.full_m(self.pinned, data), data.qfrc_bias - data.qfrc_passive, data
+        return _terms(self.pinned, q, qd)
 
     def outputs(self, q, qd, qdd, data):
         force = stance_force(self.pinned, data.replace(qacc=qdd))
