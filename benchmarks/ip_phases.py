@@ -2,10 +2,12 @@
 problem (M1-M4 repeated to a batch of B): the exact derivatives (one forward-over-reverse pass split by
 shooting segment, the inequality Jacobian in its segments' blocks), the Newton system (condensed
 Hessian, null-space QR, reduced Hessian and its Cholesky factorisation, one solve), one trial point
-of the line search (a rollout), and the whole
-iteration as the solver runs it (its line search included). Each phase is its own jit-compiled, vmapped
-program timed at the same iterate (the state after ``--warm-iterations`` iterations from the heuristic
-start), so the sum of the phases need not equal the iteration: XLA fuses across them in the solver.
+of the line search (a rollout), and the whole iteration as the solver runs it (its line search
+included); inside the derivatives, the shooting segments' rows alone and their forward-over-reverse
+pass alone (one direction per curved column: what a direction costs against the rows). Each phase is
+its own jit-compiled, vmapped program timed at the same iterate (the state after ``--warm-iterations``
+iterations from the heuristic start), so the sum of the phases need not equal the iteration: XLA fuses
+across them in the solver.
 
     python benchmarks/ip_phases.py --batch 4 16
     python benchmarks/ip_phases.py --batch 256 1024 --repeats 5     # on a GPU
@@ -38,7 +40,7 @@ def main():
 
     from biped_jax.gait import problem as gait_problem
     from biped_jax.gait.solver import GaitSolver, stack_tree
-    from biped_jax.optim import exact_derivatives, jacobian
+    from biped_jax.optim import exact_derivatives, jacobian, local_derivatives
     from biped_jax.optim import interior_point
     from biped_jax.studies import paper as study
 
@@ -73,6 +75,38 @@ def main():
             return solve(-(grad + jacobian.rmatvec(jac_g, sigma * (g + s) + mu / s - z)), h)
 
         newton = jax.jit(jax.vmap(newton_step))
+
+        # inside the derivatives: every shooting segment's rows once (the primal), and the segments'
+        # forward-over-reverse pass alone (one direction per curved column, its Lagrangian weighted by
+        # the iterate's multipliers in the split's order), the boundary and the assembly left out
+        local = problem.local
+        columns = jnp.asarray(local.segment_columns)
+        segments = columns.shape[0]
+        unit = jnp.eye(columns.shape[1], dtype=x0.dtype)[local.curved_segment_columns]
+
+        def segment_rows(x, model):
+            padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+            return jax.vmap(lambda c, d: local.segment(padded[c], d, model))(columns, local.segment_data)
+
+        def segment_pass(x, model, y, z):
+            padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+            rows = segment_rows(x, model)
+            ends = jax.eval_shape(local.boundary, jnp.zeros(local.boundary_columns.shape[0], x.dtype),
+                                  rows[3][-1], model)
+            # the multipliers in the split's order (as the derivatives place them), the segments' part
+            y_k, z_k = (local_derivatives._lifted(order, values, segments * part.shape[1] + end.shape[0])
+                        [:segments * part.shape[1]]
+                        for order, values, part, end in ((local.order_h, y, rows[1], ends[1]),
+                                                         (local.order_g, z, rows[2], ends[2])))
+
+            def one(c, d, y_s, z_s):
+                def lagrangian(point):
+                    r, h, g, _ = local.segment(point, d, model)
+                    return r @ r + y_s @ h + z_s @ g, (r, h, g)
+                return local_derivatives._second_order(lagrangian, padded[c], unit)
+            return jax.vmap(one)(columns, local.segment_data, y_k.reshape(segments, -1), z_k.reshape(segments, -1))
+        primal_rows = jax.jit(jax.vmap(segment_rows))
+        second_order = jax.jit(jax.vmap(segment_pass))
         one_iteration = jax.jit(jax.vmap(functools.partial(interior_point._iterate, problem, options),
                                          in_axes=(None, 0, 0)))
         f, h, g, grad, jac_h, jac_g, hessian = derivatives(state.x, params, weight, y, z, structure)
@@ -82,6 +116,8 @@ def main():
         phases = {}
         for label, function, call in (
                 ("derivatives", derivatives, (state.x, params, weight, y, z, structure)),
+                ("  segments' rows", primal_rows, (state.x, params)),
+                ("  segments' pass", second_order, (state.x, params, y, z)),
                 ("newton system", newton, newton_args),
                 ("one trial point", evaluate, (state.x, params)),
                 ("whole iteration", one_iteration, (structure, params, state))):
