@@ -3,13 +3,15 @@ problem (M1-M4 repeated to a batch of B): the exact derivatives (one forward-ove
 shooting segment, the inequality Jacobian in its segments' blocks), the Newton system (condensed
 Hessian, null-space QR, reduced Hessian and its Cholesky factorisation, one solve), one trial point
 of the line search (a rollout), and the whole iteration as the solver runs it (its line search
-included); inside the derivatives, the shooting segments' rows alone and their forward-over-reverse
-pass alone (one direction per curved column: what a direction costs against the rows). Each phase is
-its own jit-compiled, vmapped program timed at the same iterate (the state after ``--warm-iterations``
-iterations from the heuristic start), so the sum of the phases need not equal the iteration: XLA fuses
-across them in the solver.
+included); with ``--segment-pass``, inside the derivatives, the shooting segments' rows alone and their
+forward-over-reverse pass alone (one direction per curved column: what a direction costs against the
+rows). Each phase is its own jit-compiled, vmapped program timed at the same iterate (the state after
+``--warm-iterations`` iterations from the heuristic start), so the sum of the phases need not equal the
+iteration: XLA fuses across them in the solver (the segments' pass alone can take longer than the
+derivatives that hold it).
 
     python benchmarks/ip_phases.py --batch 4 16
+    python benchmarks/ip_phases.py --batch 4 16 --spans 16 --segment-pass
     python benchmarks/ip_phases.py --batch 256 1024 --repeats 5     # on a GPU
 """
 
@@ -32,6 +34,8 @@ def main():
     parser.add_argument("--warm-iterations", type=int, default=15,
                         help="iterations from the heuristic start before timing (a representative iterate)")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--segment-pass", action="store_true",
+                        help="also time, inside the derivatives, the segments' rows and their second-order pass alone")
     parser.add_argument("--float32", action="store_true", help="single precision (default float64)")
     parser.add_argument("--name", default="ip_phases", help="results file stem")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
@@ -114,10 +118,10 @@ def main():
                        jax.vmap(jacobian.row_scaled)(jac_g, state.scale_g), grad,
                        state.scale_h * h, state.scale_g * g, state.s, state.z, state.mu)
         phases = {}
+        inside = ((("  segments' rows", primal_rows, (state.x, params)),
+                   ("  segments' pass", second_order, (state.x, params, y, z))) if args.segment_pass else ())
         for label, function, call in (
-                ("derivatives", derivatives, (state.x, params, weight, y, z, structure)),
-                ("  segments' rows", primal_rows, (state.x, params)),
-                ("  segments' pass", second_order, (state.x, params, y, z)),
+                ("derivatives", derivatives, (state.x, params, weight, y, z, structure)), *inside,
                 ("newton system", newton, newton_args),
                 ("one trial point", evaluate, (state.x, params)),
                 ("whole iteration", one_iteration, (structure, params, state))):
