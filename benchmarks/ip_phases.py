@@ -84,24 +84,27 @@ def main():
         # forward-over-reverse pass alone (one direction per curved column, its Lagrangian weighted by
         # the iterate's multipliers in the split's order), the boundary and the assembly left out
         local = problem.local
-        columns = jnp.asarray(local.segment_columns)
-        segments = columns.shape[0]
-        unit = jnp.eye(columns.shape[1], dtype=x0.dtype)[local.curved_segment_columns]
+        if args.segment_pass and local is None:
+            raise SystemExit("--segment-pass needs shooting segments (the split derivatives): this space has one")
+        columns = jnp.asarray(local.segment_columns) if local is not None else None
 
         def segment_rows(x, model):
             padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
             return jax.vmap(lambda c, d: local.segment(padded[c], d, model))(columns, local.segment_data)
 
         def segment_pass(x, model, y, z):
-            padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
-            rows = segment_rows(x, model)
+            segments, width = columns.shape
+            # the row counts (shapes only, not timed), then the multipliers in the split's order as the
+            # derivatives place them: the segments' part
+            rows = jax.eval_shape(segment_rows, x, model)
             ends = jax.eval_shape(local.boundary, jnp.zeros(local.boundary_columns.shape[0], x.dtype),
-                                  rows[3][-1], model)
-            # the multipliers in the split's order (as the derivatives place them), the segments' part
+                                  jax.ShapeDtypeStruct(rows[3].shape[1:], x.dtype), model)
             y_k, z_k = (local_derivatives._lifted(order, values, segments * part.shape[1] + end.shape[0])
                         [:segments * part.shape[1]]
                         for order, values, part, end in ((local.order_h, y, rows[1], ends[1]),
                                                          (local.order_g, z, rows[2], ends[2])))
+            padded = jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+            unit = jnp.eye(width, dtype=x.dtype)[local.curved_segment_columns]
 
             def one(c, d, y_s, z_s):
                 def lagrangian(point):

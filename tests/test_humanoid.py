@@ -56,10 +56,6 @@ def test_planarising_constraint_keeps_the_sagittal_dynamics(planarised):
     assert model.opt.timestep == humanoid.TIMESTEP
 
 
-#: Compiled (MJX run op by op compiles every operation alone); one program per site for the tests' models.
-site_position = jax.jit(mjx_biped.site_position, static_argnums=2)
-
-
 def test_impact_map_on_the_humanoid_equals_the_optimisers(planarised):
     """With the held joints locked, the humanoid's rigid impact is the optimiser's impact map of the
     planar biped whose links are the humanoid's composite bodies."""
@@ -69,7 +65,7 @@ def test_impact_map_on_the_humanoid_equals_the_optimisers(planarised):
     qf = np.array([0.05, 0.27, 0.15, -0.45, 0.3, 0.2, 0.25])
     qfd = np.array([0.6, -0.2, -0.4, 1.5, -2.0, -3.0, 1.0])
     # put the landing foot (leg 2) on the ground
-    qf[1] -= float(site_position(floating, jnp.asarray(qf), "foot2")[2])
+    qf[1] -= float(mjx_biped.site_position(floating, jnp.asarray(qf), "foot2")[2])
     expected_after, expected_impulse = (np.asarray(a) for a in jax.jit(mjx_biped.impact_map)(
         floating, jnp.asarray(qf), jnp.asarray(qfd)))
     qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
@@ -192,8 +188,8 @@ def test_isolated_touchdown_balances_momentum_and_stops_the_foot(planarised):
     floating = registry.put_mjx_model(planar)
     qf = np.array([0.05, 0.27, 0.0, 0.3, 1.2, -0.3, 0.1])  # leg 2 reaching ahead, leg 1 folded up
     qfd = np.array([0.6, -0.2, 0.0, 0.0, 0.0, 0.0, 0.0])  # the whole robot moving forward and down
-    qf[1] -= float(site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
-    assert float(site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
+    qf[1] -= float(mjx_biped.site_position(floating, jnp.asarray(qf), "foot2")[2]) - 5e-4  # 0.5 mm above the ground
+    assert float(mjx_biped.site_position(floating, jnp.asarray(qf), "foot1")[2]) > 0.1
     qpos, qvel = np.zeros(model.nq), np.zeros(model.nv)
     columns = humanoid.sagittal_columns(layout, 0)
     qpos[columns], qvel[columns] = qf, qfd

@@ -84,12 +84,12 @@ def _both_backends(chain_dynamics, mjx_dynamics, q, qd, u, foot1: int):
     designed = mjx_dynamics.pinned
     data = mjx.forward(designed, mjx.make_data(designed).replace(qpos=q, qvel=qd, ctrl=u))
     qdd, _ = planar_chain.forward_dynamics(chain_dynamics.chain, designed, q, qd, u)
-    found = {}
+    found, states = {}, {}
     for name, dynamics, accelerations in (("chain", chain_dynamics, qdd), ("mjx", mjx_dynamics, data.qacc)):
-        mass, bias, state = dynamics.terms(q, qd)
-        force, sites = dynamics.outputs(q, qd, qdd, state)
+        mass, bias, states[name] = dynamics.terms(q, qd)
+        force, sites = dynamics.outputs(q, qd, qdd, states[name])
         found[name] = {"qdd": accelerations, "mass": mass, "bias": bias, "force": force, "sites": sites}
-    state = chain_dynamics.terms(q, qd)[2]
+    state = states["chain"]
     found["chain"]["energy"] = planar_chain.mechanical_energy(chain_dynamics.chain, designed, state, qd)
     found["mjx"]["energy"] = mjx_biped.mechanical_energy(designed, q, qd)
     found["chain"]["foot1"] = planar_chain.site_positions(chain_dynamics.chain, designed, state, ("foot1",))[0]

@@ -165,10 +165,17 @@ def mechanical_energy(model, q: jax.Array, qd: jax.Array) -> jax.Array:
     return 0.5 * qd @ mass_matrix(model, q) @ qd + potential
 
 
+@jax.jit  # traced once per signature (see _positions)
+def _velocity_pass(model, q, qd):
+    """MJX's data after its position and velocity stages at (q, qd): the bias force, the bodies'
+    velocities."""
+    data = mjx.make_data(model).replace(qpos=q, qvel=qd)
+    return mjx.fwd_velocity(model, mjx.fwd_position(model, data))
+
+
 def generalized_gravity(model, q: jax.Array) -> jax.Array:
     """Generalised gravity forces G(q) (the bias force at rest), shape (nv,), N m or N."""
-    data = mjx.make_data(model).replace(qpos=q)
-    return mjx.fwd_velocity(model, mjx.fwd_position(model, data)).qfrc_bias
+    return _velocity_pass(model, q, jnp.zeros(model.nv, q.dtype)).qfrc_bias
 
 
 # ----------------------------------------------------------------------------- single support
@@ -204,9 +211,7 @@ def ground_reaction(pinned, q: jax.Array, qd: jax.Array, qdd: jax.Array) -> jax.
     The pin is the only contact, so this is the force the world exerts on the stance shank; MJX's
     Newton-Euler pass gives it from (q, qd, qdd).
     """
-    data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
-    data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
-    return stance_force(pinned, data.replace(qacc=qdd))
+    return stance_force(pinned, _velocity_pass(pinned, q, qd).replace(qacc=qdd))
 
 
 # ----------------------------------------------------------------------------- touchdown
@@ -233,8 +238,7 @@ def impact_map(floating, qf: jax.Array, qfd_before: jax.Array) -> tuple[jax.Arra
 @jax.jit  # traced once per signature (see _positions)
 def _terms(pinned, q, qd):
     """(M (nv, nv), qfrc_bias - qfrc_passive (nv,), the forward pass's data) at (q, qd)."""
-    data = mjx.make_data(pinned).replace(qpos=q, qvel=qd)
-    data = mjx.fwd_velocity(pinned, mjx.fwd_position(pinned, data))
+    data = _velocity_pass(pinned, q, qd)
     return mjx.full_m(pinned, data), data.qfrc_bias - data.qfrc_passive, data
 
 

@@ -101,8 +101,9 @@ def _swing_foot(dynamics, states):
     kinematics: tests/test_planar_chain.py), one program for every design: MJX's kinematics under
     ``jacfwd`` took some 20 s a call on a 2-core CPU, op by op or compiled."""
     def foot(q):
-        return dynamics.swing_foot(q, jnp.zeros_like(q))[0]
-    return jax.vmap(jax.jacfwd(foot))(states), jax.vmap(foot)(states)
+        at = dynamics.swing_foot(q, jnp.zeros_like(q))[0]
+        return at, at
+    return jax.vmap(jax.jacfwd(foot, has_aux=True))(states)  # (the Jacobian, the position) in one pass
 
 
 def clearance_offset(model: gait_problem.GaitModel, q: np.ndarray, grid: np.ndarray, phase: np.ndarray,
