@@ -10,7 +10,9 @@ generations over the lateral law's numbers (:func:`tune_lateral`, from the model
 :data:`biped_jax.humanoid.tracker.LATERAL`). Then the walk of ``--steps`` steps after the start's
 transient and, with ``--push-batch B``, the command's two push trials
 (:func:`biped_jax.studies.humanoid.walk_3d`). ``--one-hip-roll-drive`` puts one drive on each hip roll
-instead of the tracker's two; ``--clearance`` sets the swing foot's lift over the optimal step's path.
+instead of the tracker's two, ``--two-drives JOINT ...`` two on each of those leg joints; ``--clearance`` sets
+the swing foot's lift over the optimal step's path; ``--gait-clearance`` walks the step solved again with
+that clearance (``--touchdown-speed``: and landing's bound; ``--drive-limits``: and within the walk's drives).
 
     python benchmarks/humanoid_feedforward.py --gaits OUT [--model M2] [--tune 0] [--steps 56]
         [--tune-lateral 0] [--push-batch 0] [--gains FILE.json] [--name humanoid_feedforward_M2]
@@ -32,7 +34,7 @@ from biped_jax.commands import configure_jax
 configure_jax()
 
 from biped_jax.gait import problem as gait_problem  # noqa: E402
-from biped_jax.humanoid import reference, tracker, walk3d, walker  # noqa: E402
+from biped_jax.humanoid import free_base, reference, tracker, walk3d, walker  # noqa: E402
 from biped_jax.studies import humanoid as study  # noqa: E402
 
 
@@ -164,6 +166,8 @@ def main():
     parser.add_argument("--model", default="M2", choices=("M1", "M2", "M3", "M4"))
     parser.add_argument("--one-hip-roll-drive", action="store_true",
                         help="one drive on each hip roll instead of the tracker's two")
+    parser.add_argument("--two-drives", nargs="+", default=None, choices=free_base.LEG_JOINTS,
+                        help="the leg joints on two drives (default: the tracker's, each hip roll)")
     parser.add_argument("--gains", type=Path, default=None,
                         help="a result of this script to take the gains and lateral numbers from "
                              "(default: the model's tuned)")
@@ -178,6 +182,9 @@ def main():
                         help="with --gait-clearance: the share of the step over which it rises and falls")
     parser.add_argument("--touchdown-speed", type=float, default=None,
                         help="with --gait-clearance: the swing foot's largest forward speed at touchdown, m/s")
+    parser.add_argument("--drive-limits", action="store_true",
+                        help="with --gait-clearance: the step within the walk's drives' lines and gear limits "
+                             "(GaitSettings.drive_limits; it then minimises their Joule heat)")
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
     parser.add_argument("--population", type=int, default=24)
     parser.add_argument("--tune-seconds", type=float, default=9.0)
@@ -201,11 +208,14 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default=None)
     args = parser.parse_args()
+    if args.one_hip_roll_drive and args.two_drives:
+        parser.error("--one-hip-roll-drive and --two-drives name the drives twice: give one")
 
     x, settings, trajectory = optimal_step(args.model, args.gaits)
     # the command's step (studies.humanoid.WALK_GAITS) unless --gait-clearance names another
+    parallel = () if args.one_hip_roll_drive else None if args.two_drives is None else tuple(args.two_drives)
     step = study.walked_step(args.model, x, settings, trajectory, args.gait_clearance, args.touchdown_speed,
-                             args.clearance_ramp, print)
+                             args.clearance_ramp, print, args.drive_limits or None, parallel)
     x, settings, trajectory = step.x, step.settings, step.trajectory
     if step.gait is not None:
         print(f"the step with {step.gait['swing_clearance_m']} m of swing clearance, landing at most "
@@ -217,7 +227,6 @@ def main():
         controller = json.loads(args.gains.read_text())["rows"][0]["controller"]
         gains = tracker.Gains(**controller["gains"])
         lateral = {k: controller["lateral"][k] for k in LATERAL_SCALE}
-    parallel = () if args.one_hip_roll_drive else None
     started = time.perf_counter()
     walk = lambda gains, lateral, earlier=None: study.tracker_walking(  # noqa: E731
         args.model, x, settings, trajectory, gains, args.clearance, parallel, lateral, earlier)
@@ -244,6 +253,7 @@ def main():
            "gait_clearance_m": step.gait["swing_clearance_m"] if step.gait else 0.0,
            "clearance_ramp": step.settings.clearance_ramp,
            "touchdown_speed_mps": step.gait["touchdown_forward_speed_mps"] if step.gait else None,
+           "gait_drive_limits": bool(step.gait and step.gait["drive_limits"]),
            "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}

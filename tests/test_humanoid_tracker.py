@@ -226,7 +226,8 @@ def test_the_walked_step_is_the_models_cleared_step_or_its_optimum(walkings, pap
                                                                    monkeypatch):
     """``walked_step``: a model without a WALK_GAITS entry (M4), or any model asked for no clearance, walks its
     optimum as given (no lift recorded, no gait record); M2 by default walks its WALK_GAITS step, solved again
-    with that clearance and landing bound (here a stand-in solve), tracked with no lift and recorded."""
+    with that clearance and landing bound (here a stand-in solve), tracked with no lift and recorded; asked
+    for drive limits the solve gets the walk's drives (two at each hip pitch: twice a knee's gear limit)."""
     optimum, settings = paper_solutions[1].x, short_solver.settings
     trajectory = walkings["M2"].args  # any object: the optimum's trajectory is passed through untouched
     for name, clearance in (("M4", None), ("M2", 0.0)):
@@ -235,8 +236,8 @@ def test_the_walked_step_is_the_models_cleared_step_or_its_optimum(walkings, pap
         assert step.lift is None and step.gait is None
     asked = {}
 
-    def stand_in(name, x, settings_, clearance, ramp=None, touchdown_speed=None, progress=None):
-        asked.update(name=name, clearance=clearance, touchdown_speed=touchdown_speed)
+    def stand_in(name, x, settings_, clearance, ramp=None, touchdown_speed=None, progress=None, *, drives=None):
+        asked.update(name=name, clearance=clearance, touchdown_speed=touchdown_speed, drives=drives)
         return x + 1.0, dataclasses.replace(settings_, swing_clearance=clearance,
                                             touchdown_forward_speed=touchdown_speed), "converged"
     batch = jax.tree.map(lambda a: jnp.asarray(a)[None], study.paper_gait_models(study.PAPER_MODELS)[1])
@@ -244,8 +245,9 @@ def test_the_walked_step_is_the_models_cleared_step_or_its_optimum(walkings, pap
     monkeypatch.setattr(humanoid_study, "cleared_gait", stand_in)
     monkeypatch.setattr(humanoid_study, "simulated_step", lambda name, x, settings_: simulated)
     step = humanoid_study.walked_step("M2", optimum, settings, trajectory)
-    clearance, landing = humanoid_study.WALK_GAITS["M2"]
-    assert asked == {"name": "M2", "clearance": clearance, "touchdown_speed": landing}
+    clearance, landing, drive_limits = humanoid_study.WALK_GAITS["M2"]
+    assert not drive_limits
+    assert asked == {"name": "M2", "clearance": clearance, "touchdown_speed": landing, "drives": None}
     np.testing.assert_array_equal(step.x, optimum + 1.0)
     assert step.settings.swing_clearance == clearance and step.trajectory is simulated and step.lift == 0.0
     assert step.gait["swing_clearance_m"] == clearance and step.gait["touchdown_forward_speed_mps"] == landing
@@ -253,3 +255,11 @@ def test_the_walked_step_is_the_models_cleared_step_or_its_optimum(walkings, pap
     # a bound asked for overrides the entry's
     humanoid_study.walked_step("M2", optimum, settings, trajectory, touchdown_speed=0.5)
     assert asked["touchdown_speed"] == 0.5
+    step = humanoid_study.walked_step("M2", optimum, settings, trajectory, drive_limits=True,
+                                      parallel=("hip_roll", "hip_pitch"))
+    assert step.gait["drive_limits"] and asked["clearance"] == clearance
+    limit = np.asarray(asked["drives"].gear_torque_limit)  # stance hip, stance knee, swing hip, swing knee
+    np.testing.assert_allclose(limit[[0, 2]], 2.0 * limit[[1, 3]])
+    one = humanoid_study.planar_walk_drives("M2")  # one drive at M2's hip pitch and knee
+    np.testing.assert_allclose(np.asarray(one.gear_torque_limit), limit[1])
+    assert np.shape(one.supply_voltage) == ()

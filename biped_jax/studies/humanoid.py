@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -30,13 +30,27 @@ PAPER_DRIVE = ("RE25-42V", 66.22)
 PUSH_BATCH, PUSH_IMPULSE, PUSH_SWEEP, PUSH_DURATION, PUSH_RECOVERY = 64, 0.5, 2.0, 0.1, 1.5
 #: The 3D walk's models: the paper's two mass classes at the optimal gait's speed.
 WALK_MODELS = ("M2", "M4")
+class WalkGait(NamedTuple):
+    """A model's step for the 3D walk (:data:`WALK_GAITS`): the study's optimum solved again with the swing
+    foot's ``clearance`` (m) over the ground mid-step, the landing's forward speed at most
+    ``touchdown_speed`` (m/s; None: no bound) and, with ``drive_limits``, within the speed-torque lines
+    and gear limits of the walk's drives (:func:`planar_walk_drives`; the problem then minimises their
+    Joule heat instead of the paper's integral of u^2)."""
+
+    clearance: float
+    touchdown_speed: float | None = None
+    drive_limits: bool = False
+
+
 #: The step each model's tracker walks where it is not the study's optimum with the swing foot lifted after
-#: the optimisation: the optimum solved again with the swing foot's clearance (m) and the landing's forward
-#: speed bound (m/s) in the problem (:func:`cleared_gait`), tracked with nothing added. M2's path then asks at
-#: most 1.06 times the drive's line (2.26 with the lift added to the optimum; docs/studies.md). M4 walks the
-#: optimum with the lift: its gait needs more than the walk's drive (the planar optimum alone asks 1.13
-#: times its line at the stance hip).
-WALK_GAITS = {"M2": (0.01, 1.2)}
+#: the optimisation (:func:`cleared_gait`), tracked with nothing added. M2's path then asks at most 1.06
+#: times the drive's line (2.26 with the lift added to the optimum; docs/studies.md). M4 walks its optimum
+#: with the lift: solved with the clearance and the landing's bound its path asks 1.7 times the line (the
+#: stance knee at the step's end), and within two drives at each hip pitch and one at each knee
+#: (``drive_limits``) 1.27, but its walk, retuned, was less robust to pushes (docs/studies.md).
+WALK_GAITS = {"M2": WalkGait(0.01, 1.2)}
+#: The interior point's options for a step solved again within its drives' lines (:func:`cleared_gait`).
+DRIVE_LIMITED_OPTIONS = dataclasses.replace(study.IP_OPTIONS, max_iterations=200)
 
 
 def paper_model(name: str) -> tuple[str, gait_problem.GaitModel]:
@@ -80,7 +94,8 @@ def solved_gait(name: str, settings: gait_problem.GaitSettings, gaits: Path | No
 
 def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, clearance: float,
                  ramp: float | None = None, touchdown_speed: float | None = None,
-                 progress: Callable[[str], None] | None = None) -> tuple[np.ndarray, gait_problem.GaitSettings, str]:
+                 progress: Callable[[str], None] | None = None, *, drives=None
+                 ) -> tuple[np.ndarray, gait_problem.GaitSettings, str]:
     """(decision vector, settings, status) of model ``name``'s optimal step solved again with the swing foot
     held ``clearance`` m over the ground mid-step (:attr:`~biped_jax.gait.problem.GaitSettings.swing_clearance`;
     ``ramp``: its ``clearance_ramp``, default the settings'; ``touchdown_speed``: its
@@ -88,7 +103,10 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
     from the step ``x`` under ``settings`` (the study's optimum; the interior point starts with the study's
     barrier, as from a cold start: the optimum violates the new rows). The humanoid then walks a path whose
     own torques include the lift, instead of a lift added to the optimum (which costs the swing hip several
-    times the optimum's torque where it turns)."""
+    times the optimum's torque where it turns). ``drives``: the planar joints' drives
+    (:class:`~biped_jax.drives.model.JointDrives`, e.g. :func:`planar_walk_drives`) whose lines and gear
+    limits the step then keeps (``drive_limits``), minimising their Joule heat; solved from the step
+    with the clearance alone (the second solve's status is returned)."""
     from biped_jax.gait.solver import GaitSolver
     settings = dataclasses.replace(settings, swing_clearance=float(clearance),
                                    clearance_ramp=settings.clearance_ramp if ramp is None else float(ramp),
@@ -96,11 +114,32 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
                                    else float(touchdown_speed))
     _, model = paper_model(name)
     say = progress or (lambda message: None)
-    say(f"solving {name}'s step again with the swing foot {1e3 * clearance:g} mm up mid-step")
-    solution = GaitSolver(settings).using(study.IP_OPTIONS).solve(
-        [name], [model], x0=np.asarray(x)[None],
-        progress=progress_report.iteration_progress(say, name, study.IP_OPTIONS.max_iterations))[0]
+    stages = [(settings, model, study.IP_OPTIONS, f"with the swing foot {1e3 * clearance:g} mm up mid-step")]
+    if drives is not None:  # M4's took 79-80 iterations from its cleared step (2026-12-07)
+        stages.append((dataclasses.replace(settings, drive_limits=True), dataclasses.replace(model, drives=drives),
+                       DRIVE_LIMITED_OPTIONS, "within its drives' lines"))
+    for settings, model, options, what in stages:
+        say(f"solving {name}'s step again {what}")
+        solution = GaitSolver(settings).using(options).solve(
+            [name], [model], x0=np.asarray(x)[None],
+            progress=progress_report.iteration_progress(say, name, options.max_iterations))[0]
+        x = solution.x
     return solution.x, settings, solution.status
+
+
+def planar_walk_drives(name: str, parallel: tuple[str, ...] | None = None):
+    """The drives of model ``name``'s 3D walk, two at the leg joints ``parallel`` (default
+    :data:`biped_jax.humanoid.tracker.DRIVES`), at the planar biped's joints: stance hip, stance knee,
+    swing hip, swing knee, fields (4,) (the supply voltage ()); :class:`~biped_jax.drives.model.JointDrives`."""
+    from biped_jax.humanoid import tracker, walk3d
+    from biped_jax.robots.mjcf import HUMANOID_ACTUATED_JOINTS
+    mass_class, _ = paper_model(name)
+    drives = walk3d.walk_drives(mass_class, tracker.DRIVES if parallel is None else parallel)
+    index = jnp.array([HUMANOID_ACTUATED_JOINTS.index(joint) for joint in ("hip_pitch_l", "knee_l")] * 2)
+    joints = len(HUMANOID_ACTUATED_JOINTS)
+    return dataclasses.replace(
+        jax.tree.map(lambda field: jnp.broadcast_to(field, (joints,))[index], drives),
+        supply_voltage=jnp.asarray(drives.supply_voltage).reshape(-1)[0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,23 +168,29 @@ class WalkedStep:
 
 def walked_step(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, trajectory=None,
                 clearance: float | None = None, touchdown_speed: float | None = None, ramp: float | None = None,
-                progress: Callable[[str], None] | None = None) -> WalkedStep:
+                progress: Callable[[str], None] | None = None, drive_limits: bool | None = None,
+                parallel: tuple[str, ...] | None = None) -> WalkedStep:
     """The step model ``name``'s tracker walks, from the study's optimum ``x`` under ``settings`` (simulated as
     ``trajectory`` where given): solved again with the swing foot's ``clearance`` (m) and the landing's
     ``touchdown_speed`` bound (m/s) where ``clearance`` is positive (:func:`cleared_gait`; ``ramp`` its
-    ``clearance_ramp``), else the optimum itself. ``clearance`` None: the model's :data:`WALK_GAITS` entry
-    (its landing bound too, unless ``touchdown_speed`` is given), the optimum for a model without one."""
+    ``clearance_ramp``; with ``drive_limits`` within the walk's drives, two at the leg joints ``parallel``:
+    :func:`planar_walk_drives`), else the optimum itself. ``clearance`` None: the model's :data:`WALK_GAITS`
+    entry (its landing bound and drive limits too, unless given), the optimum for a model without one."""
     if clearance is None:
-        clearance, landing = WALK_GAITS.get(name, (0.0, None))
+        clearance, landing, limited = WALK_GAITS.get(name, WalkGait(0.0))
         touchdown_speed = landing if touchdown_speed is None else touchdown_speed
+        drive_limits = limited if drive_limits is None else drive_limits
+    drive_limits = bool(drive_limits)
     if not clearance:
         return WalkedStep(x, settings, simulated_step(name, x, settings) if trajectory is None else trajectory,
                           None)
-    x, settings, status = cleared_gait(name, x, settings, clearance, ramp, touchdown_speed, progress)
+    x, settings, status = cleared_gait(name, x, settings, clearance, ramp, touchdown_speed, progress,
+                                       drives=planar_walk_drives(name, parallel) if drive_limits else None)
     trajectory = simulated_step(name, x, settings)
     return WalkedStep(x, settings, trajectory,
                       {"swing_clearance_m": clearance, "clearance_ramp": settings.clearance_ramp,
-                       "touchdown_forward_speed_mps": touchdown_speed, "status": status,
+                       "touchdown_forward_speed_mps": touchdown_speed, "drive_limits": drive_limits,
+                       "status": status,
                        "cost": float(gait_problem.cost(trajectory)), "added_lift_m": 0.0})
 
 
