@@ -30,6 +30,8 @@ PAPER_DRIVE = ("RE25-42V", 66.22)
 PUSH_BATCH, PUSH_IMPULSE, PUSH_SWEEP, PUSH_DURATION, PUSH_RECOVERY = 64, 0.5, 2.0, 0.1, 1.5
 #: The 3D walk's models: the paper's two mass classes at the optimal gait's speed.
 WALK_MODELS = ("M2", "M4")
+
+
 class WalkGait(NamedTuple):
     """A model's step for the 3D walk (:data:`WALK_GAITS`): the study's optimum solved again with the swing
     foot's ``clearance`` (m) over the ground mid-step, the landing's forward speed at most
