@@ -4,8 +4,8 @@ command does.
 
 ``--tune G`` runs G generations of CMA-ES over the law's eleven gains (``--population`` walks of
 ``--tune-seconds`` s per start in one vmapped program per generation; ``--tune-starts K``: the nominal start
-and K - 1 disturbed ones, the score their mean), from ``--gains FILE`` (a result of this script) or the
-model's tuned gains (:data:`biped_jax.humanoid.tracker.TUNED`); ``--tune-lateral G`` first runs G
+and K - 1 disturbed ones, the score their mean; ``--tune-push I``: those pushed I N s), from ``--gains
+FILE`` (a result of this script) or the model's tuned gains (:data:`biped_jax.humanoid.tracker.TUNED`); ``--tune-lateral G`` first runs G
 generations over the lateral law's numbers (:func:`tune_lateral`, from the model's
 :data:`biped_jax.humanoid.tracker.LATERAL`). Then the walk of ``--steps`` steps after the start's
 transient and, with ``--push-batch B``, the command's two push trials
@@ -84,7 +84,8 @@ def evolve(base: dict, scale: dict, scores, carries: list, generations: int, pop
 def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_weight: float = 0.0,
                drift_weight: float = 0.0, excess_weight: float = 0.5, speed_weight: float = 0.0,
                lift_height: float = 0.002):
-    """score(args, carry): a walk of ``seconds`` s with the law's ``args`` from ``carry``: its steps within
+    """score(args, start): a walk of ``seconds`` s with the law's ``args`` from ``start`` = (carry, push:
+    :class:`biped_jax.humanoid.walk3d.Push` on the torso during it): its steps within
     5 % of the gait's length and 10 % of its time, + 3 if up at the end, + its seconds up, + half its distance,
     - ``excess_weight`` times its mean |command - applied| (N m, summed over the joints), - ``lift_weight``
     times its share of samples with the stance sole above ``lift_height`` m after the stance's first 30 ms (a
@@ -95,11 +96,13 @@ def walk_score(walking: study.Walking, seconds: float, step_length: float, lift_
     step, n = walk3d.stepper(prog, tracker.LAW), int(round(seconds / float(prog.mj_model.opt.timestep)))
     step_time = walking.step_time
 
-    def score(args, carry):
+    def score(args, start):
+        carry, push = start
+
         def body(state, _):
             carry, up, good, distance, last, upright_steps, excess, lifted = state
             before = carry[1].memory
-            carry, (command, applied) = step(args, walk3d.NO_PUSH, carry)
+            carry, (command, applied) = step(args, push, carry)
             data, memory = carry[0], carry[1].memory
             landed = memory.steps != before.steps
             length = memory.foot[0] - before.foot[0]
@@ -128,7 +131,8 @@ def tune(walking: study.Walking, carries: list, generations: int, population: in
          speed_weight: float = 0.0, lift_height: float = 0.002) -> tracker.Gains:
     """CMA-ES over :class:`biped_jax.humanoid.tracker.Gains` from ``walking``'s, a candidate's score its
     :func:`walk_score` (``lift_weight``, ``excess_weight``, ``speed_weight``, ``lift_height``) averaged over
-    ``carries`` (the starts); one vmapped program of ``population`` walks per generation and start."""
+    ``carries`` (the starts, each (carry, push): :func:`starts`); one vmapped program of ``population`` walks
+    per generation and start."""
     score = walk_score(walking, seconds, step_length, lift_weight, excess_weight=excess_weight,
                        speed_weight=speed_weight, lift_height=lift_height)
     scores = jax.jit(jax.vmap(lambda gains, carry: score(
@@ -153,11 +157,17 @@ def tune_lateral(walking: study.Walking, carries: list, generations: int, popula
     return evolve(base, LATERAL_SCALE, scores, carries, generations, population, sigma, seed=3)
 
 
-def starts(walking: study.Walking, count: int) -> list:
-    """The tuners' starts: the nominal one and ``count`` - 1 disturbed ones, as (MJX data, law state)."""
+def starts(walking: study.Walking, count: int, push: float = 0.0, seconds: float = 9.0) -> list:
+    """The tuners' starts: the nominal one and ``count`` - 1 disturbed ones, as ((MJX data, law state), push);
+    ``push`` > 0 (N s): each disturbed walk pushed that much sagittally at a third of its ``seconds`` and
+    sideways at half, for 0.1 s, the signs alternating over the starts (the nominal walk unpushed)."""
     prog = walk3d.program(walking.mass_class, walking.parallel)
     qpos, qvel = walk3d.disturbed_starts(prog, walking.args.params, count - 1, seed=2, around=walking.start_state)
-    return [walking.start(*walking.start_state)] + [walking.start(q, v) for q, v in zip(qpos, qvel)]
+    signs = [(1.0, 1.0), (-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0)]
+    pushed = [walk3d.pushes(push * signs[k % 4][0], push * signs[k % 4][1], seconds / 3, seconds / 2) if push
+              else walk3d.NO_PUSH for k in range(count - 1)]
+    return [(walking.start(*walking.start_state), walk3d.NO_PUSH)] + [
+        (walking.start(q, v), p) for q, v, p in zip(qpos, qvel, pushed)]
 
 
 def main():
@@ -190,6 +200,9 @@ def main():
     parser.add_argument("--tune-seconds", type=float, default=9.0)
     parser.add_argument("--tune-starts", type=int, default=1,
                         help="the tuner's starts: the nominal one and this many minus one disturbed ones")
+    parser.add_argument("--tune-push", type=float, default=0.0,
+                        help="N s: the tuners' disturbed starts also pushed that much sagittally and sideways "
+                             "(signs alternating; the nominal start unpushed)")
     parser.add_argument("--tune-lateral", type=int, default=0,
                         help="CMA-ES generations over the lateral law's numbers, before the gains' (16 walks of "
                              "6 s from --tune-starts starts each)")
@@ -238,12 +251,13 @@ def main():
           + " N m (leg l standing)", flush=True)
     _, model = study.paper_model(args.model)
     if args.tune_lateral:
-        lateral = tune_lateral(walking, starts(walking, args.tune_starts), args.tune_lateral, 16, 6.0,
-                               float(model.step_length), args.lift_weight)
+        lateral = tune_lateral(walking, starts(walking, args.tune_starts, args.tune_push, 6.0), args.tune_lateral, 16,
+                               6.0, float(model.step_length), args.lift_weight)
         print("lateral numbers:", json.dumps(lateral), flush=True)
         walking = walk(walking.args.gains, lateral, walking)
     if args.tune:
-        gains = tune(walking, starts(walking, args.tune_starts), args.tune, args.population, args.tune_seconds,
+        gains = tune(walking, starts(walking, args.tune_starts, args.tune_push, args.tune_seconds), args.tune,
+                     args.population, args.tune_seconds,
                      float(model.step_length), args.lift_weight, args.tune_sigma, args.excess_weight,
                      args.speed_weight, args.lift_height)
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking)
