@@ -5,8 +5,8 @@ command does.
 ``--tune G`` runs G generations of CMA-ES over the law's eleven gains (``--population`` walks of
 ``--tune-seconds`` s per start in one vmapped program per generation; ``--tune-starts K``: the nominal start
 and K - 1 disturbed ones, the score their mean; ``--tune-push I``: those pushed I N s), from ``--gains
-FILE`` (a result of this script) or the model's tuned gains (:data:`biped_jax.humanoid.tracker.TUNED`); ``--tune-lateral G`` first runs G
-generations over the lateral law's numbers (:func:`tune_lateral`, from the model's
+FILE`` (a result of this script) or the model's tuned gains (:data:`biped_jax.humanoid.tracker.TUNED`);
+``--tune-lateral G`` first runs G generations over the lateral law's numbers (:func:`tune_lateral`, from the model's
 :data:`biped_jax.humanoid.tracker.LATERAL`). Then the walk of ``--steps`` steps after the start's
 transient and, with ``--push-batch B``, the command's two push trials
 (:func:`biped_jax.studies.humanoid.walk_3d`). ``--one-hip-roll-drive`` puts one drive on each hip roll
