@@ -258,7 +258,7 @@ def test_the_walked_step_is_the_models_cleared_step_or_its_optimum(walkings, pap
     step = humanoid_study.walked_step("M2", optimum, settings, trajectory, drive_limits=True,
                                       parallel=("hip_roll", "hip_pitch"))
     assert step.gait["drive_limits"] and asked["clearance"] == clearance
-    limit = np.asarray(asked["drives"].gear_torque_limit)  # stance hip, stance knee, swing hip, swing knee
+    limit = np.asarray(asked["drives"].gear_torque_limit)  # hip, knee of one leg, then the other
     np.testing.assert_allclose(limit[[0, 2]], 2.0 * limit[[1, 3]])
     one = humanoid_study.planar_walk_drives("M2")  # one drive at M2's hip pitch and knee
     np.testing.assert_allclose(np.asarray(one.gear_torque_limit), limit[1])

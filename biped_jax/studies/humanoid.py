@@ -131,17 +131,19 @@ def cleared_gait(name: str, x: np.ndarray, settings: gait_problem.GaitSettings, 
 
 def planar_walk_drives(name: str, parallel: tuple[str, ...] | None = None):
     """The drives of model ``name``'s 3D walk, two at the leg joints ``parallel`` (default
-    :data:`biped_jax.humanoid.tracker.DRIVES`), at the planar biped's joints: stance hip, stance knee,
-    swing hip, swing knee, fields (4,) (the supply voltage ()); :class:`~biped_jax.drives.model.JointDrives`."""
+    :data:`biped_jax.humanoid.tracker.DRIVES`), at the planar biped's joints: hip and knee of one leg, then
+    of the other, fields (4,) (the supply voltage ()); :class:`~biped_jax.drives.model.JointDrives`."""
     from biped_jax.humanoid import tracker, walk3d
     from biped_jax.robots.mjcf import HUMANOID_ACTUATED_JOINTS
     mass_class, _ = paper_model(name)
     drives = walk3d.walk_drives(mass_class, tracker.DRIVES if parallel is None else parallel)
-    index = jnp.array([HUMANOID_ACTUATED_JOINTS.index(joint) for joint in ("hip_pitch_l", "knee_l")] * 2)
-    joints = len(HUMANOID_ACTUATED_JOINTS)
-    return dataclasses.replace(
-        jax.tree.map(lambda field: jnp.broadcast_to(field, (joints,))[index], drives),
-        supply_voltage=jnp.asarray(drives.supply_voltage).reshape(-1)[0])
+    # the planar joints' order as the humanoid's Layout.sagittal_actuators (the legs' drives are alike)
+    index = jnp.array([HUMANOID_ACTUATED_JOINTS.index(joint)
+                       for joint in ("hip_pitch_l", "knee_l", "hip_pitch_r", "knee_r")])
+    at_joints = lambda field: jnp.broadcast_to(field, (len(HUMANOID_ACTUATED_JOINTS),))[index]  # noqa: E731
+    # a drive set with two motors somewhere has every field per actuator, the supply voltage included
+    return dataclasses.replace(jax.tree.map(at_joints, drives),
+                               supply_voltage=jnp.asarray(drives.supply_voltage).reshape(-1)[0])
 
 
 @dataclasses.dataclass(frozen=True)
