@@ -13,6 +13,8 @@ transient and, with ``--push-batch B``, the command's two push trials
 instead of the tracker's two, ``--two-drives JOINT ...`` two on each of those leg joints; ``--clearance`` sets
 the swing foot's lift over the optimal step's path; ``--gait-clearance`` walks the step solved again with
 that clearance (``--touchdown-speed``: and landing's bound; ``--drive-limits``: and within the walk's drives).
+``--carry-command TAU`` walks (after any tuning) with each leg's sagittal commands (``--carry-all``: every
+actuator's) carried across a touchdown over TAU s (:func:`carried_across_touchdown`).
 
     python benchmarks/humanoid_feedforward.py --gaits OUT [--model M2] [--tune 0] [--steps 56]
         [--tune-lateral 0] [--push-batch 0] [--gains FILE.json] [--name humanoid_feedforward_M2]
@@ -170,6 +172,34 @@ def starts(walking: study.Walking, count: int, push: float = 0.0, seconds: float
         (walking.start(q, v), p) for q, v, p in zip(qpos, qvel, pushed)]
 
 
+def carried_across_touchdown(walking: study.Walking, tau: float, joints: list[int]) -> study.Walking:
+    """``walking`` with the commands of the actuators ``joints`` carried across each touchdown: w new + (1 - w)
+    the joint's command in the step before the touchdown, w = (time since the touchdown) / ``tau`` (s) clipped
+    to [0, 1]. The law's state becomes (the tracker's, the held commands (16,))."""
+    inner = walking.law
+    mask = jnp.zeros(16).at[jnp.asarray(joints)].set(1.0)
+
+    def control(args, prog, data, state):
+        tracked, held = state
+        command, s = inner.control(args, prog, data, tracked)
+        w = jnp.clip(tracked.memory.time / tau, 0.0, 1.0)
+        command = command + mask * (1.0 - w) * (held - command)
+        return command, (s, command)
+
+    def remember(args, prog, data, state, note, timestep):
+        tracked, held = state
+        s, command = note
+        after = inner.remember(args, prog, data, tracked, s, timestep)
+        return after, jnp.where(after.memory.steps != tracked.memory.steps, command, held)
+
+    def start(qpos, qvel):
+        data, tracked = walking.start(qpos, qvel)
+        return data, (tracked, jax.device_put(jnp.zeros(16), jax.devices()[0]))
+
+    law = walk3d.Law(f"{inner.name}_carried_{tau}_{'_'.join(map(str, joints))}", control, remember)
+    return dataclasses.replace(walking, law=law, start=start)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--gaits", type=Path, required=True, help="the output folder of `biped-jax reproduce`")
@@ -195,6 +225,10 @@ def main():
     parser.add_argument("--drive-limits", action="store_true",
                         help="with --gait-clearance: the step within the walk's drives' lines and gear limits "
                              "(GaitSettings.drive_limits; it then minimises their Joule heat)")
+    parser.add_argument("--carry-command", type=float, default=0.0, metavar="TAU",
+                        help="carry every leg's sagittal command across a touchdown over TAU s (0: no)")
+    parser.add_argument("--carry-all", action="store_true",
+                        help="with --carry-command: carry all sixteen actuators' commands")
     parser.add_argument("--tune", type=int, default=0, help="CMA-ES generations before the walk")
     parser.add_argument("--population", type=int, default=24)
     parser.add_argument("--tune-seconds", type=float, default=9.0)
@@ -221,6 +255,8 @@ def main():
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results")
     parser.add_argument("--name", default=None)
     args = parser.parse_args()
+    if args.carry_command < 0:
+        parser.error(f"--carry-command must be 0 s or more, got {args.carry_command}")
     if args.one_hip_roll_drive and args.two_drives:
         parser.error("--one-hip-roll-drive and --two-drives name the drives twice: give one")
 
@@ -261,6 +297,10 @@ def main():
                      float(model.step_length), args.lift_weight, args.tune_sigma, args.excess_weight,
                      args.speed_weight, args.lift_height)
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking)
+    if args.carry_command:
+        legs = prog.layout.legs
+        joints = list(range(16)) if args.carry_all else [leg[k] for leg in legs for k in tracker.SAGITTAL]
+        walking = carried_across_touchdown(walking, args.carry_command, joints)
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
     row = {"model": args.model, "clearance_m": args.clearance,
@@ -268,6 +308,7 @@ def main():
            "clearance_ramp": step.settings.clearance_ramp,
            "touchdown_speed_mps": step.gait["touchdown_forward_speed_mps"] if step.gait else None,
            "gait_drive_limits": bool(step.gait and step.gait["drive_limits"]),
+           "carry_command_s": args.carry_command, "carry_all": args.carry_all,
            "wall_s": time.perf_counter() - started,
            "path_largest_torque_Nm": {prog.mj_model.actuator(j).name: float(torque[j])
                                       for j in range(len(prog.layout.qvel))}, **entry}
