@@ -112,7 +112,9 @@ class Gains:
 #: (the nominal start and three disturbed ones) with the swing foot kept level; M4 the same, then on the
 #: swaying path with its :data:`LATERAL` numbers ``--tune 10 --tune-starts 4 --lift-weight 20
 #: --excess-weight 2 --speed-weight 10``, and once more so (on another run of ``biped-jax reproduce``, whose
-#: M4 gait the earlier gains walked only three steps from the nominal start). M2's ``impact`` was chosen from
+#: M4 gait the earlier gains walked only three steps from the nominal start), then twice more so with the torque
+#: beyond the drive's line weighed ten times as much (``--excess-weight 20``: its largest command 6.8 -> 6.3
+#: times the line, 4.6 -> 3.9 % of the samples beyond it). M2's ``impact`` was chosen from
 #: walks at 0.01-0.07 s (its largest command fell from 7.6 to 2.7 times the drive's line); M4 has none (its
 #: earlier gains with the damping ramped over 40 ms fell at the eleventh step). M2 walks the step of
 #: :data:`biped_jax.studies.humanoid.WALK_GAITS` (the clearance and a soft landing in the gait problem):
@@ -126,9 +128,9 @@ TUNED = {
                 kp_t=350.30436016502955, kd_t=20.286907314240104, kp_a=41.96809411240331, kd_a=3.116068227677931,
                 ankle_w=-12.88118615898178, place=-0.6723933251272604, fade=0.45734523059258714, yaw_ff=1.0,
                 impact=0.04, impact_kp=1.0),
-    "M4": Gains(kp=383.8382874930795, kd=0.0822848328505576, kp_sw=185.72706987426602, kd_sw=2.497684705636724,
-                kp_t=374.5072509403958, kd_t=12.39062768614328, kp_a=83.26037031666131, kd_a=2.579009499342861,
-                ankle_w=-10.237211918575506, place=0.4479597548333609, fade=0.4757105331754392),
+    "M4": Gains(kp=346.5380708583762, kd=0.1656910718633509, kp_sw=164.16071382807738, kd_sw=1.1394311582242076,
+                kp_t=321.37475218964045, kd_t=7.9050472791261, kp_a=79.19917467853156, kd_a=2.477644298917071,
+                ankle_w=-14.780604555339927, place=0.5045455996383155, fade=0.48815982403266905),
 }
 #: Each model's numbers of the lateral law for the swaying path (:class:`biped_jax.humanoid.walker.WalkerParams`
 #: fields over :func:`biped_jax.studies.humanoid.walk_params`'s), tuned by CMA-ES from :data:`LATERAL_START`
