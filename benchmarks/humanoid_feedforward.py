@@ -175,9 +175,11 @@ def starts(walking: study.Walking, count: int, push: float = 0.0, seconds: float
 def carried_across_touchdown(walking: study.Walking, tau: float, joints: list[int]) -> study.Walking:
     """``walking`` with the commands of the actuators ``joints`` carried across each touchdown: w new + (1 - w)
     the joint's command in the step before the touchdown, w = (time since the touchdown) / ``tau`` (s) clipped
-    to [0, 1]. The law's state becomes (the tracker's, the held commands (16,))."""
+    to [0, 1]. ``walking`` must be the tracker's (its state's ``memory.time``); the law's state becomes (the
+    tracker's, the held commands (actuators,))."""
     inner = walking.law
-    mask = jnp.zeros(16).at[jnp.asarray(joints)].set(1.0)
+    actuators = walk3d.program(walking.mass_class, walking.parallel).mj_model.nu
+    mask = jnp.zeros(actuators).at[jnp.asarray(joints)].set(1.0)
 
     def control(args, prog, data, state):
         tracked, held = state
@@ -194,7 +196,7 @@ def carried_across_touchdown(walking: study.Walking, tau: float, joints: list[in
 
     def start(qpos, qvel):
         data, tracked = walking.start(qpos, qvel)
-        return data, (tracked, jax.device_put(jnp.zeros(16), jax.devices()[0]))
+        return data, (tracked, jax.device_put(jnp.zeros(actuators), jax.devices()[0]))
 
     law = walk3d.Law(f"{inner.name}_carried_{tau}_{'_'.join(map(str, joints))}", control, remember)
     return dataclasses.replace(walking, law=law, start=start)
@@ -299,7 +301,7 @@ def main():
         walking = walk(gains, {k: float(getattr(walking.args.params, k)) for k in LATERAL_SCALE}, walking)
     if args.carry_command:
         legs = prog.layout.legs
-        joints = list(range(16)) if args.carry_all else [leg[k] for leg in legs for k in tracker.SAGITTAL]
+        joints = list(range(prog.mj_model.nu)) if args.carry_all else [leg[k] for leg in legs for k in tracker.SAGITTAL]
         walking = carried_across_touchdown(walking, args.carry_command, joints)
     started = time.perf_counter()
     entry, _ = study.walk_3d(walking, trajectory, args.steps, args.push_batch, print)
